@@ -1,0 +1,103 @@
+"""Process set-up for the numerics: thread limits, offline flags and the MuJoCo GL backend.
+
+Every process that runs cnfmp numerics calls :func:`configure` once, before torch, OpenCV,
+MuJoCo or any Hugging Face library is imported: the embedded interpreter does it on its
+worker thread right after start-up, pytest does it from ``conftest.py``. Environment
+variables that the user already set win over these defaults.
+
+Why: torch's pip wheel uses libgomp, whose threads spin-wait; on the 2 shared cores of our
+machines two intra-op threads collapsed throughput (``../shared/facts.md``). Nothing may
+reach a model hub at run time, so the Hugging Face libraries are forced offline.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+#: Environment defaults applied by :func:`configure` (values the user set are kept).
+ENV_DEFAULTS = {
+    "HF_HUB_OFFLINE": "1",
+    "TRANSFORMERS_OFFLINE": "1",
+    "HF_DATASETS_OFFLINE": "1",
+    "HF_HUB_DISABLE_TELEMETRY": "1",
+    "TOKENIZERS_PARALLELISM": "false",
+    # Offscreen rendering without a display; osmesa is the fallback (see doctor).
+    "MUJOCO_GL": "egl",
+}
+
+_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+_configured_threads: int | None = None
+
+
+def configure(threads: int = 1) -> dict:
+    """Apply thread limits and offline defaults; idempotent.
+
+    Args:
+        threads: torch intra-op threads (and OpenMP/BLAS threads); >= 1.
+
+    Returns:
+        ``{"threads": int, "torch_loaded": bool}`` describing what was applied.
+
+    Raises:
+        ValueError: ``threads`` < 1, or a second call asks for a different count after
+            torch was configured (torch's inter-op pool cannot be resized).
+    """
+    global _configured_threads
+    if threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    if _configured_threads is not None:
+        if threads != _configured_threads:
+            raise ValueError(
+                f"threads already configured to {_configured_threads}; cannot change to {threads}"
+            )
+        return {"threads": threads, "torch_loaded": "torch" in sys.modules}
+
+    for key, value in ENV_DEFAULTS.items():
+        os.environ.setdefault(key, value)
+    for key in _THREAD_VARS:
+        # libgomp reads these when torch loads it, so they must be set before the import.
+        os.environ.setdefault(key, str(threads))
+
+    torch_loaded = False
+    try:
+        import torch
+    except ImportError:
+        pass  # reported by the doctor; trajectory-only work does not need torch
+    else:
+        torch.set_num_threads(threads)
+        try:
+            torch.set_num_interop_threads(threads)
+        except RuntimeError:
+            pass  # already fixed by earlier parallel work in this process; doctor reports it
+        torch_loaded = True
+    try:
+        import cv2
+    except ImportError:
+        pass
+    else:
+        cv2.setNumThreads(threads)
+
+    _configured_threads = threads
+    return {"threads": threads, "torch_loaded": torch_loaded}
+
+
+def bridge_selftest(array):
+    """Doubles a float64 numpy array in place and returns it (the same object).
+
+    The bridge sends an array it owns, calls this, and checks both that the values doubled
+    and that the buffer address did not change: proof that arrays cross without copies.
+
+    Args:
+        array: a writable, C-contiguous ``numpy.ndarray`` of dtype float64, any shape.
+
+    Returns:
+        The same array object, after ``array *= 2``.
+    """
+    import numpy as np
+
+    if not isinstance(array, np.ndarray) or array.dtype != np.float64:
+        raise TypeError(f"expected a float64 numpy array, got {type(array).__name__}")
+    array *= 2.0
+    return array

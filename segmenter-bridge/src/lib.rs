@@ -1,0 +1,32 @@
+//! # segmenter-bridge
+//!
+//! The one place Rust touches Python. It starts CPython embedded in the process on the
+//! project venv (never the system interpreter), applies thread limits before torch loads,
+//! and runs one dedicated Python worker thread fed by a channel. Other crates call typed
+//! methods on [`Bridge`]; they never see pyo3.
+//!
+//! ```no_run
+//! let bridge = segmenter_bridge::Bridge::start_default()?;
+//! let report = bridge.doctor()?;
+//! println!("Python prefix: {}", report.python.prefix);
+//! # Ok::<(), segmenter_bridge::BridgeError>(())
+//! ```
+//!
+//! Arrays cross without copies (`into_pyarray` moves a Rust buffer into numpy, readonly views
+//! read numpy buffers in place). A Python exception becomes [`BridgeError::Python`] carrying
+//! the exception type, message and the innermost traceback frames.
+
+mod calls;
+mod error;
+mod interpreter;
+mod worker;
+
+#[cfg(test)]
+mod tests;
+
+pub use calls::{ArrayRoundTrip, DoctorCheck, DoctorReport, PythonInfo};
+pub use error::{BridgeError, PythonException, TRACEBACK_FRAMES};
+pub use interpreter::BridgeConfig;
+/// The ndarray version the bridge's array calls use.
+pub use numpy::ndarray;
+pub use worker::Bridge;
