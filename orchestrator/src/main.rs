@@ -1,1 +1,41 @@
-fn main() {}
+//! The `cnfmp` command line. Each subcommand lives in `cnfmp::commands`; this file parses
+//! arguments and turns failures into a one-line message and an exit code (2 bad input,
+//! 1 environment or runtime problem).
+
+use clap::{Parser, Subcommand};
+
+use cnfmp::commands::{self, trajectory::TrajectoryCommand};
+
+/// Compositional Neural Field Movement Primitives: scene image + prompt -> robot trajectory.
+#[derive(Debug, Parser)]
+#[command(name = "cnfmp", version, about, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Check the installation: embedded Python on the venv, torch, MuJoCo rendering, lerobot.
+    Doctor {
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Inspect, resample or smooth trajectory JSON files.
+    #[command(subcommand)]
+    Trajectory(TrajectoryCommand),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Doctor { json } => commands::doctor::run(json),
+        Command::Trajectory(command) => commands::trajectory::run(command),
+    };
+    if let Err(failure) = result {
+        eprintln!("error: {failure}");
+        std::process::exit(failure.exit_code());
+    }
+}
+

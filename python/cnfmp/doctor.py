@@ -48,11 +48,31 @@ def _check(name: str, ok: bool, detail: str, fix: str = "") -> dict:
     return {"name": name, "ok": bool(ok), "detail": detail, "fix": "" if ok else fix}
 
 
+def _venv_python_version() -> str | None:
+    """The interpreter version the venv was created with, from its pyvenv.cfg."""
+    try:
+        with open(os.path.join(sys.prefix, "pyvenv.cfg"), encoding="utf-8") as cfg:
+            entries = dict(line.split("=", 1) for line in cfg if "=" in line)
+    except OSError:
+        return None
+    entries = {key.strip(): value.strip() for key, value in entries.items()}
+    return entries.get("version_info") or entries.get("version")
+
+
 def _python_check() -> dict:
-    in_venv = sys.prefix != sys.base_prefix
-    detail = f"Python {sys.version.split()[0]}, sys.prefix={sys.prefix}"
-    return _check("python", in_venv and sys.version_info[:2] == (3, 11), detail,
-                  "the interpreter is not the project venv (Python 3.11); " + FIX_SETUP)
+    running = sys.version.split()[0]
+    detail = f"Python {running}, sys.prefix={sys.prefix}"
+    if sys.prefix == sys.base_prefix:
+        return _check("python", False, detail, "the interpreter is not running on the project venv; " + FIX_SETUP)
+    if sys.version_info[:2] != (3, 11):
+        return _check("python", False, detail, "the project needs Python 3.11; " + FIX_SETUP)
+    venv_version = _venv_python_version()
+    if venv_version is not None and not venv_version.startswith(running):
+        # An embedding binary linked against another libpython (Debian's 3.11.2, say) runs
+        # that interpreter on the venv's packages: C extensions may then fail at random.
+        return _check("python", False, f"{detail}, but the venv was made with Python {venv_version}",
+                      "this binary links the wrong libpython; rebuild it with `make setup`")
+    return _check("python", True, detail)
 
 
 def _requirement_checks() -> list[dict]:

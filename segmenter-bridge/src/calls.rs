@@ -3,13 +3,13 @@
 
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::error::BridgeError;
 use crate::worker::Bridge;
 
 /// One line of the environment report (`cnfmp.doctor.collect`).
-#[derive(Debug, Clone, Deserialize, PartialEq, Eq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Eq)]
 pub struct DoctorCheck {
     /// What was checked (`python`, `torch`, `mujoco render`, ...).
     pub name: String,
@@ -24,7 +24,7 @@ pub struct DoctorCheck {
 }
 
 /// The embedded interpreter, as it describes itself.
-#[derive(Debug, Clone, Deserialize, PartialEq, Eq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Eq)]
 pub struct PythonInfo {
     pub version: String,
     pub executable: String,
@@ -33,7 +33,7 @@ pub struct PythonInfo {
 }
 
 /// The whole environment report.
-#[derive(Debug, Clone, Deserialize, PartialEq, Eq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Eq)]
 pub struct DoctorReport {
     pub checks: Vec<DoctorCheck>,
     pub python: PythonInfo,

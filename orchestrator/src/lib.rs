@@ -1,0 +1,11 @@
+//! # cnfmp orchestrator
+//!
+//! The Rust side of cnfmp: it owns the process, the command line, input validation and
+//! trajectory post-processing, and reaches the Python numerics only through
+//! [`segmenter_bridge`]. The library holds everything the `cnfmp` binary (src/main.rs) runs,
+//! so integration tests can use it directly.
+
+pub mod commands;
+pub mod failure;
+pub mod files;
+pub mod trajectory;
