@@ -5,6 +5,7 @@
 use segmenter_bridge::ndarray::{ArrayD, IxDyn};
 use segmenter_bridge::{Bridge, DoctorCheck, DoctorReport};
 
+use super::print_stdout;
 use crate::failure::Failure;
 
 pub fn run(json: bool) -> Result<(), Failure> {
@@ -12,9 +13,9 @@ pub fn run(json: bool) -> Result<(), Failure> {
     let mut report = bridge.doctor()?;
     report.checks.push(zero_copy_check(bridge));
     if json {
-        println!("{}", serde_json::to_string_pretty(&report).expect("report serialises"));
+        print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))?;
     } else {
-        print_report(&report);
+        print_stdout(&render_report(&report))?;
     }
     match report.checks.iter().find(|check| !check.ok) {
         None => Ok(()),
@@ -36,13 +37,14 @@ fn zero_copy_check(bridge: &Bridge) -> DoctorCheck {
     DoctorCheck { name: "bridge zero-copy".into(), ok, detail, fix: if ok { String::new() } else { "report a bug: numpy arrays must cross the bridge without copies".into() }, backend: None }
 }
 
-fn print_report(report: &DoctorReport) {
+fn render_report(report: &DoctorReport) -> String {
     let python = &report.python;
-    println!("embedded Python {} (sys.prefix {})", python.version, python.prefix);
+    let mut text = format!("embedded Python {} (sys.prefix {})", python.version, python.prefix);
     for check in &report.checks {
-        println!("{} {:<24} {}", if check.ok { "ok  " } else { "FAIL" }, check.name, check.detail);
+        text += &format!("\n{} {:<24} {}", if check.ok { "ok  " } else { "FAIL" }, check.name, check.detail);
         if !check.fix.is_empty() {
-            println!("     fix: {}", check.fix);
+            text += &format!("\n     fix: {}", check.fix);
         }
     }
+    text
 }

@@ -2,3 +2,16 @@
 
 pub mod doctor;
 pub mod trajectory;
+
+use std::io::{ErrorKind, Write};
+
+use crate::failure::Failure;
+
+/// Writes `text` and a newline to stdout. A closed pipe (`cnfmp ... | head`) is not an error.
+pub fn print_stdout(text: &str) -> Result<(), Failure> {
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{text}").and_then(|()| out.flush()) {
+        Err(err) if err.kind() != ErrorKind::BrokenPipe => Err(Failure::Environment(format!("cannot write to stdout: {err}"))),
+        _ => Ok(()),
+    }
+}

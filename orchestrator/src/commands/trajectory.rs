@@ -3,8 +3,9 @@
 
 use std::path::PathBuf;
 
-use clap::{Args, Subcommand};
+use clap::{ArgGroup, Args, Subcommand};
 
+use super::print_stdout;
 use crate::failure::Failure;
 use crate::files::write_atomically;
 use crate::trajectory::resample::{ResampleTarget, resample};
@@ -38,7 +39,7 @@ pub enum TrajectoryCommand {
 }
 
 #[derive(Debug, Args)]
-#[group(id = "grid", required = true, multiple = false, args = ["fps", "steps"])]
+#[command(group(ArgGroup::new("grid").required(true).args(["fps", "steps"])))]
 pub struct ResampleArgs {
     /// Trajectory JSON file.
     file: PathBuf,
@@ -58,9 +59,9 @@ pub fn run(command: TrajectoryCommand) -> Result<(), Failure> {
         TrajectoryCommand::Inspect { file, json } => {
             let summary = summarize(&Trajectory::load(&file)?);
             if json {
-                println!("{}", serde_json::to_string_pretty(&summary).expect("summary serialises"));
+                print_stdout(&serde_json::to_string_pretty(&summary).expect("summary serialises"))?;
             } else {
-                println!("{}\n{summary}", file.display());
+                print_stdout(&format!("{}\n{summary}", file.display()))?;
             }
         }
         TrajectoryCommand::Resample(args) => {

@@ -14,26 +14,42 @@ use super::{Frame, Pose, Trajectory, TrajectoryError, so3};
 /// Kernel support in standard deviations.
 const SUPPORT_SIGMAS: f64 = 3.0;
 
+/// Gaussian weight at `dt` standard deviations, shifted down so it reaches zero at `half`
+/// (the window's half-width, also in standard deviations): a frame right at the edge weighs
+/// ~0 whether rounding puts it inside or outside, which keeps the kernel symmetric (and the
+/// ends pinned) on any time grid.
+fn kernel(dt: f64, half: f64) -> f64 {
+    ((-0.5 * dt * dt).exp() - (-0.5 * half * half).exp()).max(0.0)
+}
+
 /// Smooths with a Gaussian kernel of standard deviation `sigma_s` seconds (> 0). Frame times,
 /// gripper values and metadata are kept.
 pub fn smooth(trajectory: &Trajectory, sigma_s: f64) -> Result<Trajectory, TrajectoryError> {
     if !(sigma_s.is_finite() && sigma_s > 0.0) {
         return Err(TrajectoryError::new("--sigma", format!("must be a finite number of seconds > 0, got {sigma_s}")));
     }
-    let padded = reflect_ends(&trajectory.frames, SUPPORT_SIGMAS * sigma_s);
+    let reach = SUPPORT_SIGMAS * sigma_s;
+    let padded = reflect_ends(&trajectory.frames, reach);
+    let (padded_start, padded_end) = (padded[0].t, padded[padded.len() - 1].t);
     let frames = trajectory
         .frames
         .iter()
         .map(|frame| {
+            // Near an end of a short trajectory the padding may not reach a full window; a
+            // window kept symmetric about the frame keeps the odd reflection exact.
+            let half = reach.min(frame.t - padded_start).min(padded_end - frame.t);
+            let window = &padded[padded.partition_point(|o| o.t < frame.t - half)..padded.partition_point(|o| o.t <= frame.t + half)];
             let mut weight_sum = 0.0;
             let mut position = Vector3::zeros();
             let mut tangent = Vector3::zeros();
-            for other in padded.iter().filter(|o| (o.t - frame.t).abs() <= SUPPORT_SIGMAS * sigma_s) {
-                let dt = (other.t - frame.t) / sigma_s;
-                let weight = (-0.5 * dt * dt).exp();
+            for other in window {
+                let weight = kernel((other.t - frame.t) / sigma_s, half / sigma_s);
                 weight_sum += weight;
                 position += other.pose.position * weight;
                 tangent += so3::to_tangent(&other.pose.orientation, &frame.pose.orientation) * weight;
+            }
+            if weight_sum == 0.0 {
+                return *frame; // a window too narrow to hold any neighbour (one frame)
             }
             Frame {
                 pose: Pose {
