@@ -8,38 +8,11 @@
 #      file and holds the editable install of this clone's `cnfmp` package.
 # Layer 2 is per clone because an editable install points at one checkout; sharing it would
 # make one clone silently import another clone's code.
-#
-# Environment:
-#   CNFMP_CACHE   cache root (default: ${XDG_CACHE_HOME:-~/.cache}/cnfmp)
-#   CNFMP_PYTHON  a CPython 3.11 built with --enable-shared (default: python3.11 on PATH)
+# Environment: CNFMP_CACHE, CNFMP_PYTHON (see common.sh).
 set -euo pipefail
-
-repo=$(cd "$(dirname "$0")/.." && pwd)
-cache=${CNFMP_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/cnfmp}
-uv_version=0.13.9
-lock="$repo/requirements.lock"
-
-say() { printf '[setup-venv] %s\n' "$*"; }
-die() { printf '[setup-venv] error: %s\n' "$*" >&2; exit 1; }
-
-# --- the base interpreter ---------------------------------------------------------------
-python_cmd=${CNFMP_PYTHON:-python3.11}
-command -v "$python_cmd" >/dev/null 2>&1 || die "no '$python_cmd' on PATH; install CPython 3.11 (pyenv) or set CNFMP_PYTHON"
-# Resolve shims (pyenv) to the real executable: the venv must point at the interpreter itself.
-python=$("$python_cmd" -c 'import sys; print(sys.executable)')
-read -r py_version py_shared < <("$python" -c 'import sys, sysconfig; print("%d.%d.%d" % sys.version_info[:3], sysconfig.get_config_var("Py_ENABLE_SHARED") or 0)')
-[[ $py_version == 3.11.* ]] || die "$python is Python $py_version; the project needs 3.11 (lerobot 0.4.4, see ../shared/facts.md)"
-[[ $py_shared == 1 ]] || die "$python was built without --enable-shared; the Rust binary embeds libpython and needs it"
-
-# --- uv (fast, cached installs), bootstrapped with pip into the cache -------------------
-uv="$cache/tools/uv-$uv_version/bin/uv"
-if [[ ! -x $uv ]]; then
-    say "installing uv $uv_version into $cache/tools"
-    rm -rf "$cache/tools/uv-$uv_version"
-    "$python" -m pip install --quiet --disable-pip-version-check --target "$cache/tools/uv-$uv_version" "uv==$uv_version"
-fi
-export UV_CACHE_DIR=${UV_CACHE_DIR:-$cache/uv}
-export UV_PYTHON_DOWNLOADS=never  # only registries are reachable; never fetch interpreters
+source "$(dirname "$0")/common.sh"
+find_python
+find_uv
 
 # --- layer 1: the cached base venv -----------------------------------------------------
 key=$( (cat "$lock"; echo "$python $py_version") | sha256sum | cut -c1-16)

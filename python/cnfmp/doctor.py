@@ -159,7 +159,7 @@ def _render_check() -> dict:
         if backend != "osmesa":
             fallback = _probe_render("osmesa", in_process=False)
             if fallback.get("ok"):
-                fix = "EGL failed but OSMesa works: export MUJOCO_GL=osmesa"
+                fix = f"MUJOCO_GL={backend} failed but osmesa renders: export MUJOCO_GL=osmesa"
         check = _check("mujoco render", False, f"MUJOCO_GL={backend} failed: {why}", fix)
     check["backend"] = backend
     return check
