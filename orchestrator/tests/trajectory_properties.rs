@@ -42,6 +42,9 @@ fn same_rotation(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) -> f64 {
 }
 
 proptest! {
+    // Cheap cases: run four times proptest's default.
+    #![proptest_config(ProptestConfig::with_cases(1024))]
+
     #[test]
     fn log_inverts_exp_within_pi(v in vector(1.8)) {
         prop_assume!(v.norm() < PI - 1e-6);
