@@ -14,6 +14,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 
 FIX_SETUP = "run `make setup` in the repository root"
 
@@ -29,19 +30,27 @@ _RENDER_SCENE = """
 </mujoco>
 """
 
-_RENDER_PROBE = """
-import json, time, mujoco, numpy as np
-start = time.perf_counter()
-model = mujoco.MjModel.from_xml_string(SCENE)
-data = mujoco.MjData(model)
-mujoco.mj_forward(model, data)
-with mujoco.Renderer(model, 32, 32) as renderer:
-    renderer.update_scene(data, camera="probe")
-    rgb = renderer.render().astype(float)
-red = float(rgb[..., 0].mean()); other = float(rgb[..., 1:].mean())
-print(json.dumps({"ok": red > 100 and red > 2 * other + 10, "red": red, "other": other,
-                  "ms": 1000 * (time.perf_counter() - start)}))
-"""
+
+
+def render_probe() -> dict:
+    """Renders the probe scene at 32x32 with the backend MUJOCO_GL selects.
+
+    Returns ``{"ok", "red", "other", "ms"}``: ok when the red box came back red (mean red
+    channel and the mean of the other two channels, 0-255; wall time in ms).
+    """
+    import mujoco
+    import numpy as np
+
+    start = time.perf_counter()
+    model = mujoco.MjModel.from_xml_string(_RENDER_SCENE)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    with mujoco.Renderer(model, 32, 32) as renderer:
+        renderer.update_scene(data, camera="probe")
+        rgb = renderer.render().astype(np.float64)
+    red, other = float(rgb[..., 0].mean()), float(rgb[..., 1:].mean())
+    return {"ok": red > 100 and red > 2 * other + 10, "red": red, "other": other,
+            "ms": 1000 * (time.perf_counter() - start)}
 
 
 def _check(name: str, ok: bool, detail: str, fix: str = "") -> dict:
@@ -120,22 +129,15 @@ def _torch_threads_check() -> dict:
 
 
 def _probe_render(backend: str, in_process: bool) -> dict:
-    """Renders the probe scene with ``backend``; in a child process unless it is the one
-    this process already uses (MuJoCo binds its GL backend at import)."""
+    """:func:`render_probe` with ``backend``: in this process when it is the backend this
+    process already uses (MuJoCo binds its GL backend at import), else in a child process."""
     if in_process:
-        scope = {"SCENE": _RENDER_SCENE}
         try:
-            import contextlib
-            import io
-
-            out = io.StringIO()
-            with contextlib.redirect_stdout(out):
-                exec(_RENDER_PROBE, scope)
-            return json.loads(out.getvalue())
+            return render_probe()
         except Exception as exc:
             return {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
     env = dict(os.environ, MUJOCO_GL=backend, PYOPENGL_PLATFORM=backend)
-    code = f"SCENE = {_RENDER_SCENE!r}\n{_RENDER_PROBE}"
+    code = "import json; from cnfmp.doctor import render_probe; print(json.dumps(render_probe()))"
     try:
         proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                               text=True, timeout=60)
