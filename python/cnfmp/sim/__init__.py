@@ -1,0 +1,12 @@
+"""The MuJoCo benchmark: five tasks built in code, scripted experts, physical judges.
+
+Modules: `scene` (table, camera, gripper), `engine` (scene image, masks, executing a
+trajectory), `task` (the Task/Scene/Verdict types, registry, seed ranges), `tasks/` (one
+module per task), `api` (the entry points the Rust bridge calls).
+"""
+
+import os
+
+# MuJoCo binds its GL backend when first imported; without a display only EGL or OSMesa
+# work, so choose before anything below imports mujoco (the user's MUJOCO_GL wins).
+os.environ.setdefault("MUJOCO_GL", "egl")
