@@ -110,25 +110,27 @@ class Simulation:
         """(128, 128, 3) uint8 camera image of the current state."""
         return self._render(segmentation=False).copy()
 
-    def render_scene(self) -> tuple[np.ndarray, np.ndarray]:
-        """The scene image with the gripper parked out of view, and its label map.
+    def render_labels(self) -> np.ndarray:
+        """(128, 128) uint8 label map of the current state: 0 background (and the gripper),
+        k where the k-th object is visible."""
+        seg = self._render(segmentation=True)
+        geom_ids, types = seg[..., 0], seg[..., 1]
+        is_geom = (types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (geom_ids >= 0)
+        labels = np.zeros(geom_ids.shape, dtype=np.uint8)
+        labels[is_geom] = self._body_label[self.model.geom_bodyid[geom_ids[is_geom]]]
+        return labels
 
-        Returns (rgb (128, 128, 3) uint8, labels (128, 128) uint8: 0 background, k the k-th
-        object). The physical state is restored afterwards.
-        """
+    def render_scene(self) -> tuple[np.ndarray, np.ndarray]:
+        """The scene image with the gripper parked out of view, and its label map
+        (see :meth:`render_labels`). The physical state is restored afterwards."""
         saved_qpos, saved_mocap = self.data.qpos.copy(), self.data.mocap_pos.copy()
         adr = self._gripper_qpos
         self.data.qpos[adr:adr + 3] = sc.PARK_POSITION
         self.data.mocap_pos[self._mocap] = sc.PARK_POSITION
         mujoco.mj_forward(self.model, self.data)
-        rgb = self._render(segmentation=False).copy()
-        seg = self._render(segmentation=True)
+        rgb, labels = self.render_rgb(), self.render_labels()
         self.data.qpos[:], self.data.mocap_pos[:] = saved_qpos, saved_mocap
         mujoco.mj_forward(self.model, self.data)
-        geom_ids, types = seg[..., 0], seg[..., 1]
-        is_geom = (types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (geom_ids >= 0)
-        labels = np.zeros(geom_ids.shape, dtype=np.uint8)
-        labels[is_geom] = self._body_label[self.model.geom_bodyid[geom_ids[is_geom]]]
         return rgb, labels
 
     def close(self) -> None:
@@ -137,10 +139,11 @@ class Simulation:
             self._renderer = None
 
     # --- execution ------------------------------------------------------------------------
-    def execute(self, trajectory: dict, frame_every: int = 0) -> tuple[ExecutionLog, list[np.ndarray]]:
+    def execute(self, trajectory: dict, frame_every: int = 0) -> tuple[ExecutionLog, list]:
         """Runs `trajectory` (at CONTROL_HZ; keys position (T,3), orientation (T,4) wxyz,
-        gripper (T,)), settles for SETTLE_S, and returns the log, plus a camera image every
-        `frame_every` control steps (starting with step 0) when `frame_every` > 0.
+        gripper (T,)), settles for SETTLE_S, and returns the log, plus every `frame_every`
+        control steps (starting with step 0; none when 0) the camera image and label map
+        as an (rgb, labels) pair, taken after the step's physics.
 
         Raises InputError when a pose leaves :data:`scene.WORKSPACE` or a value is not finite.
         """
@@ -152,7 +155,7 @@ class Simulation:
         ee_pos, ee_quat = np.zeros((steps, 3)), np.zeros((steps, 4))
         opening, obj_pos = np.zeros(steps), np.zeros((len(names), steps, 3))
         touched = np.zeros((m.nbody, m.nbody), dtype=bool)
-        frames: list[np.ndarray] = []
+        frames: list[tuple[np.ndarray, np.ndarray]] = []
         release_step, release_quat, was_closed = None, None, False
         settle_steps = round(SETTLE_S * sc.CONTROL_HZ)
         for k in range(steps + settle_steps):
@@ -179,7 +182,7 @@ class Simulation:
                 opening[k] = d.qpos[self._fingers].mean() / sc.FINGER_TRAVEL
                 obj_pos[:, k] = d.xpos[first_bodies]
                 if frame_every and k % frame_every == 0:
-                    frames.append(self.render_rgb())
+                    frames.append((self.render_rgb(), self.render_labels()))
         touched |= touched.T
         body_name = lambda b: mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b)  # noqa: E731
         pairs = {frozenset((body_name(a), body_name(b))) for a, b in zip(*np.nonzero(np.triu(touched)))}

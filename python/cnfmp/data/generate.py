@@ -1,0 +1,184 @@
+"""Demonstration datasets from the simulator, written as LeRobot v3.0 datasets (lerobot 0.4.4).
+
+Worker processes each simulate whole episodes (scene, scripted expert executed by physics,
+camera frames); the parent writes them in seed order with lerobot's own writer. The dataset
+is built in a temporary directory beside the target and renamed into place only after
+``finalize()``, so an interrupted run leaves nothing half-written.
+
+Layout (design.md): per frame at :data:`DATASET_FPS`,
+``observation.images.front`` (128x128x3 image), ``observation.state`` (measured TCP pose +
+finger opening), ``action`` (commanded pose + gripper of the next frame), the prompt as the
+lerobot task, ``annotation.masks`` (128x128 uint8 label map of the frame), ``annotation.objects``
+(JSON list of object names in label order) and ``annotation.scene`` (JSON
+``{"task", "seed"}``: the scene this episode was recorded in).
+An episode whose expert run fails the judge is skipped (and reported); the next seed is used.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import shutil
+import sys
+import time
+
+import numpy as np
+
+from cnfmp.errors import InputError
+from cnfmp.sim import scene as sc
+from cnfmp.sim.task import HELDOUT_SEEDS, TRAIN_SEEDS, check_seed, get_task
+
+#: Frames per second of the datasets: every CONTROL_HZ / DATASET_FPS-th control step.
+DATASET_FPS = 10
+STATE_NAMES = ["x", "y", "z", "qw", "qx", "qy", "qz", "gripper"]
+IMAGE_KEY = "observation.images.front"
+
+
+def features() -> dict:
+    """The LeRobot feature specification of our datasets."""
+    size = sc.IMAGE_SIZE
+    return {
+        IMAGE_KEY: {"dtype": "image", "shape": (size, size, 3), "names": ["height", "width", "channels"]},
+        "observation.state": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
+        "action": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
+        "annotation.masks": {"dtype": "uint8", "shape": (size, size), "names": ["height", "width"]},
+        "annotation.objects": {"dtype": "string", "shape": (1,), "names": None},
+        # (1,)-shaped numeric features fail to encode with numpy 2.4 in lerobot 0.4.4, so the
+        # scene identity travels as a JSON string: {"task": ..., "seed": ...}.
+        "annotation.scene": {"dtype": "string", "shape": (1,), "names": None},
+    }
+
+
+def simulate_episode(task_name: str, seed: int) -> dict:
+    """Runs the expert for (task, seed) and records it at DATASET_FPS.
+
+    Returns ``{"task", "seed", "success", "reasons", "prompt", "objects", "images" (N,128,128,3) uint8,
+    "masks" (N,128,128) uint8, "state" (N,8) float32, "action" (N,8) float32}``.
+    """
+    from cnfmp.sim import engine
+
+    task = get_task(task_name)
+    scene = task.scene(seed)
+    path = task.expert(scene)
+    every = sc.CONTROL_HZ // DATASET_FPS
+    sim = engine.Simulation(scene)
+    try:
+        log, images = sim.execute(path, frame_every=every)
+    finally:
+        sim.close()
+    verdict = task.judge(scene, log)
+    picked = np.arange(0, len(path["position"]), every)
+    state = np.concatenate([log.ee_position[picked], log.ee_quat[picked], log.finger_opening[picked, None]], axis=1)
+    nxt = np.minimum(picked + every, len(path["position"]) - 1)
+    action = np.concatenate([path["position"][nxt], path["orientation"][nxt], path["gripper"][nxt, None]], axis=1)
+    rgb, masks = zip(*images)
+    return {
+        "task": task_name, "seed": seed, "success": verdict.success, "reasons": verdict.reasons,
+        "prompt": scene.prompt, "objects": scene.objects,
+        "images": np.stack(rgb), "masks": np.stack(masks),
+        "state": state.astype(np.float32), "action": action.astype(np.float32),
+    }
+
+
+def _worker_init() -> None:
+    from cnfmp import runtime
+
+    runtime.configure(threads=1)
+
+
+def _simulate(args):
+    return simulate_episode(*args)
+
+
+def _check_request(task: str, episodes: int, seed: int, out_dir: str) -> None:
+    get_task(task)
+    check_seed(seed)
+    if not isinstance(episodes, (int, np.integer)) or episodes <= 0:
+        raise InputError(f"--episodes must be a whole number > 0, got {episodes}")
+    if os.path.exists(out_dir):
+        raise InputError(f"{out_dir} already exists; datasets are never overwritten, choose a new --out")
+    for split in (TRAIN_SEEDS, HELDOUT_SEEDS):
+        if seed in split and seed + episodes - 1 >= split.stop:
+            raise InputError(f"seeds {seed}..{seed + episodes - 1} cross the end of the "
+                             f"{'training' if split is TRAIN_SEEDS else 'held-out'} range "
+                             f"{split.start}..{split.stop - 1}; training and held-out seeds must stay disjoint")
+
+
+def generate_dataset(task: str, episodes: int, seed: int, out_dir: str, workers: int = 2,
+                     progress: bool = True) -> str:
+    """Writes a LeRobot dataset of `episodes` successful expert demonstrations of `task`,
+    from seeds `seed`, `seed + 1`, ... (a seed whose expert run fails is skipped).
+
+    Returns JSON ``{"out", "episodes", "frames", "seeds", "skipped_seeds", "seconds",
+    "episodes_per_second"}``. Raises InputError for an unknown task, episodes <= 0, an
+    existing `out_dir`, or a seed range that crosses the training/held-out boundary.
+    """
+    import datasets
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    datasets.disable_progress_bars()  # one bar per episode write would drown ours
+    _check_request(task, episodes, seed, out_dir)
+    out_dir = os.path.abspath(out_dir)
+    parent = os.path.dirname(out_dir)
+    os.makedirs(parent, exist_ok=True)
+    staging = os.path.join(parent, f".{os.path.basename(out_dir)}.partial-{os.getpid()}")
+    shutil.rmtree(staging, ignore_errors=True)
+    start = time.perf_counter()
+    written, skipped, frames = [], [], 0
+    bar = _progress(episodes, f"{task}", progress)
+    context = multiprocessing.get_context("spawn")  # fork is unsafe in a threaded (embedded) parent
+    try:
+        dataset = LeRobotDataset.create(repo_id=f"cnfmp/{task}", fps=DATASET_FPS, features=features(),
+                                        root=staging, robot_type="cnfmp_floating_gripper", use_videos=False)
+        with context.Pool(workers, initializer=_worker_init) as pool:
+            next_seed = seed
+            while len(written) < episodes:
+                # Ask for exactly as many episodes as are missing (more after skipped seeds).
+                batch = [(task, s) for s in range(next_seed, next_seed + episodes - len(written))]
+                next_seed += len(batch)
+                for episode in pool.imap(_simulate, batch):
+                    if not episode["success"]:
+                        skipped.append(episode["seed"])
+                        continue
+                    frames += _write_episode(dataset, episode)
+                    written.append(episode["seed"])
+                    bar.update(1)
+                if len(skipped) > max(5, episodes // 10):
+                    raise RuntimeError(f"the {task} expert failed on {len(skipped)} seeds {skipped[:10]}...; "
+                                       "the simulator or expert is broken")
+        dataset.finalize()
+        os.rename(staging, out_dir)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    finally:
+        bar.close()
+    seconds = time.perf_counter() - start
+    return json.dumps({"out": out_dir, "episodes": len(written), "frames": frames, "seeds": written,
+                       "skipped_seeds": skipped, "seconds": seconds,
+                       "episodes_per_second": len(written) / seconds})
+
+
+def _write_episode(dataset, episode: dict) -> int:
+    objects = json.dumps(episode["objects"])
+    scene = json.dumps({"task": episode["task"], "seed": episode["seed"]})
+    for i in range(len(episode["images"])):
+        dataset.add_frame({
+            IMAGE_KEY: episode["images"][i],
+            "observation.state": episode["state"][i],
+            "action": episode["action"][i],
+            "annotation.masks": episode["masks"][i],
+            "annotation.objects": objects,
+            "annotation.scene": scene,
+            "task": episode["prompt"],
+        })
+    dataset.save_episode()
+    return len(episode["images"])
+
+
+def _progress(total: int, label: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=label, unit="episode", disable=not enabled, file=sys.stderr,
+                dynamic_ncols=True)
