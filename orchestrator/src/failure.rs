@@ -35,6 +35,9 @@ impl From<crate::trajectory::TrajectoryError> for Failure {
 
 impl From<segmenter_bridge::BridgeError> for Failure {
     fn from(err: segmenter_bridge::BridgeError) -> Self {
-        Failure::Environment(err.to_string())
+        match err {
+            segmenter_bridge::BridgeError::InvalidInput(message) => Failure::BadInput(message),
+            other => Failure::Environment(other.to_string()),
+        }
     }
 }

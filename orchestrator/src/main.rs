@@ -4,7 +4,7 @@
 
 use clap::{Parser, Subcommand};
 
-use cnfmp::commands::{self, trajectory::TrajectoryCommand};
+use cnfmp::commands::{self, dataset::DatasetCommand, sim::SimCommand, trajectory::TrajectoryCommand};
 
 /// Compositional Neural Field Movement Primitives: scene image + prompt -> robot trajectory.
 #[derive(Debug, Parser)]
@@ -25,6 +25,12 @@ enum Command {
     /// Inspect, resample or smooth trajectory JSON files.
     #[command(subcommand)]
     Trajectory(TrajectoryCommand),
+    /// The MuJoCo benchmark: render scenes, scripted experts, execute and judge trajectories.
+    #[command(subcommand)]
+    Sim(SimCommand),
+    /// LeRobot datasets: generate demonstrations from the simulator.
+    #[command(subcommand)]
+    Dataset(DatasetCommand),
 }
 
 fn main() {
@@ -32,6 +38,8 @@ fn main() {
     let result = match cli.command {
         Command::Doctor { json } => commands::doctor::run(json),
         Command::Trajectory(command) => commands::trajectory::run(command),
+        Command::Sim(command) => commands::sim::run(command),
+        Command::Dataset(command) => commands::dataset::run(command),
     };
     if let Err(failure) = result {
         eprintln!("error: {failure}");

@@ -89,6 +89,10 @@ pub enum BridgeError {
     /// The interpreter did not start, or started on the wrong prefix.
     #[error("embedded Python failed to start: {0}")]
     Start(String),
+    /// The caller's input was wrong: Python raised `cnfmp.errors.InputError`, whose message
+    /// says what and how to fix it.
+    #[error("{0}")]
+    InvalidInput(String),
     /// A Python exception raised inside a call.
     #[error("Python raised {0}")]
     Python(PythonException),
@@ -104,9 +108,16 @@ pub enum BridgeError {
 }
 
 impl BridgeError {
-    /// Wraps a `PyErr` raised while attached.
+    /// Wraps a `PyErr` raised while attached: `cnfmp.errors.InputError` becomes
+    /// [`BridgeError::InvalidInput`], anything else [`BridgeError::Python`].
     pub(crate) fn python(py: Python<'_>, err: &PyErr) -> Self {
-        BridgeError::Python(PythonException::from_pyerr(py, err))
+        let input_error = py.import("cnfmp.errors").and_then(|module| module.getattr("InputError"));
+        match input_error {
+            Ok(class) if err.is_instance(py, &class) => {
+                BridgeError::InvalidInput(PythonException::from_pyerr(py, err).message)
+            }
+            _ => BridgeError::Python(PythonException::from_pyerr(py, err)),
+        }
     }
 }
 

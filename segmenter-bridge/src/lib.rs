@@ -19,6 +19,7 @@
 mod calls;
 mod error;
 mod interpreter;
+mod sim;
 mod worker;
 
 #[cfg(test)]
@@ -27,6 +28,7 @@ mod tests;
 pub use calls::{ArrayRoundTrip, DoctorCheck, DoctorReport, PythonInfo};
 pub use error::{BridgeError, PythonException, TRACEBACK_FRAMES};
 pub use interpreter::BridgeConfig;
+pub use sim::{DatasetReport, ExecutionReport, SceneInfo, TaskInfo, TrajectoryArrays};
 /// The ndarray version the bridge's array calls use.
 pub use numpy::ndarray;
 pub use worker::Bridge;

@@ -1,6 +1,8 @@
 //! One module per top-level `cnfmp` subcommand; each exposes `run(args) -> Result<(), Failure>`.
 
+pub mod dataset;
 pub mod doctor;
+pub mod sim;
 pub mod trajectory;
 
 use std::io::{ErrorKind, Write};

@@ -14,6 +14,8 @@ use std::fmt;
 use std::path::Path;
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use segmenter_bridge::TrajectoryArrays;
+use segmenter_bridge::ndarray::{self, Array1, Array2};
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
@@ -188,6 +190,51 @@ impl Trajectory {
             }
         }
         Ok(())
+    }
+
+    /// The frames as arrays for the bridge (positions, `[w, x, y, z]` quaternions, gripper).
+    pub fn to_arrays(&self) -> TrajectoryArrays {
+        let n = self.frames.len();
+        let mut arrays = TrajectoryArrays {
+            fps: self.fps,
+            t: Array1::zeros(n),
+            position: Array2::zeros((n, 3)),
+            orientation: Array2::zeros((n, 4)),
+            gripper: Array1::zeros(n),
+        };
+        for (i, frame) in self.frames.iter().enumerate() {
+            let q = frame.pose.orientation.quaternion();
+            arrays.t[i] = frame.t;
+            arrays.position.row_mut(i).assign(&ndarray::arr1(frame.pose.position.as_slice()));
+            arrays.orientation.row_mut(i).assign(&ndarray::arr1(&[q.w, q.i, q.j, q.k]));
+            arrays.gripper[i] = frame.gripper;
+        }
+        arrays
+    }
+
+    /// Builds and validates a trajectory from bridge arrays (quaternions `[w, x, y, z]`).
+    pub fn from_arrays(arrays: &TrajectoryArrays, metadata: Map<String, Value>) -> Result<Self, TrajectoryError> {
+        let n = arrays.t.len();
+        if arrays.position.dim() != (n, 3) || arrays.orientation.dim() != (n, 4) || arrays.gripper.len() != n {
+            return Err(TrajectoryError::new(
+                "arrays",
+                format!("shapes t {:?}, position {:?}, orientation {:?}, gripper {:?} do not describe {n} frames", arrays.t.dim(), arrays.position.dim(), arrays.orientation.dim(), arrays.gripper.dim()),
+            ));
+        }
+        let frames = (0..n)
+            .map(|i| {
+                let (p, q) = (arrays.position.row(i), arrays.orientation.row(i));
+                Frame {
+                    t: arrays.t[i],
+                    pose: Pose {
+                        position: Vector3::new(p[0], p[1], p[2]),
+                        orientation: UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3])),
+                    },
+                    gripper: arrays.gripper[i],
+                }
+            })
+            .collect();
+        Trajectory::new(arrays.fps, frames, metadata)
     }
 
     /// Start time (s).

@@ -1,0 +1,157 @@
+//! Typed calls into the simulator (`cnfmp.sim.api`) and the dataset writer
+//! (`cnfmp.data.generate`). Trajectories cross as numpy arrays without copies.
+
+use std::path::Path;
+
+use numpy::ndarray::{Array1, Array2};
+use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use crate::error::BridgeError;
+use crate::worker::Bridge;
+
+/// A trajectory as arrays: T frames of time (s), TCP position (m), orientation quaternion
+/// `[w, x, y, z]` and gripper opening in [0, 1].
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrajectoryArrays {
+    /// Sampling rate (Hz).
+    pub fps: f64,
+    /// (T,)
+    pub t: Array1<f64>,
+    /// (T, 3)
+    pub position: Array2<f64>,
+    /// (T, 4)
+    pub orientation: Array2<f64>,
+    /// (T,)
+    pub gripper: Array1<f64>,
+}
+
+/// A benchmark task.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Eq)]
+pub struct TaskInfo {
+    pub name: String,
+    pub description: String,
+}
+
+/// What `cnfmp sim render` wrote: the content of `objects.json`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Eq)]
+pub struct SceneInfo {
+    pub task: String,
+    pub seed: u64,
+    pub prompt: String,
+    /// Object names in label order (label k = objects[k - 1]).
+    pub objects: Vec<String>,
+}
+
+/// The judge's verdict on an executed trajectory.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct ExecutionReport {
+    pub task: String,
+    pub seed: u64,
+    pub prompt: String,
+    pub success: bool,
+    /// Why it failed (empty on success).
+    pub reasons: Vec<String>,
+    /// The measurements the judge used (task-specific).
+    pub metrics: serde_json::Value,
+    /// Control steps executed, and their duration (s).
+    pub frames: u64,
+    pub duration_s: f64,
+}
+
+/// Summary of a generated dataset.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct DatasetReport {
+    pub out: String,
+    pub episodes: u64,
+    pub frames: u64,
+    pub seeds: Vec<u64>,
+    /// Seeds whose expert run failed the judge and were replaced by the next seed.
+    pub skipped_seeds: Vec<u64>,
+    pub seconds: f64,
+    pub episodes_per_second: f64,
+}
+
+impl Bridge {
+    /// Calls `module.function(*args)`, which returns a JSON string, and decodes it.
+    fn call_json<T, A>(&self, module: &'static str, function: &'static str, args: A) -> Result<T, BridgeError>
+    where
+        T: DeserializeOwned + Send + 'static,
+        A: for<'py> pyo3::call::PyCallArgs<'py> + Send + 'static,
+    {
+        let json: String = self.call(move |py| {
+            let run = || -> PyResult<String> { py.import(module)?.call_method1(function, args)?.extract() };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })?;
+        serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("{module}.{function}: {err}")))
+    }
+
+    /// The benchmark tasks (`cnfmp.sim.api.tasks_json`).
+    pub fn sim_tasks(&self) -> Result<Vec<TaskInfo>, BridgeError> {
+        self.call_json("cnfmp.sim.api", "tasks_json", ())
+    }
+
+    /// The rate (Hz) at which the simulator executes trajectories; resample to it before
+    /// [`Bridge::sim_execute`].
+    pub fn sim_control_hz(&self) -> Result<f64, BridgeError> {
+        self.call(|py| {
+            let run = || -> PyResult<f64> { py.import("cnfmp.sim.api")?.getattr("CONTROL_HZ")?.extract() };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })
+    }
+
+    /// Renders the (task, seed) scene into `out` (image.png, masks.png, objects.json; see
+    /// `cnfmp.sim.api.render`). `out` must not exist or be empty.
+    pub fn sim_render(&self, task: &str, seed: u64, out: &Path) -> Result<SceneInfo, BridgeError> {
+        self.call_json("cnfmp.sim.api", "render", (task.to_owned(), seed, out.to_path_buf()))
+    }
+
+    /// The scripted expert's trajectory for (task, seed), at the control rate, and the prompt.
+    pub fn sim_expert(&self, task: &str, seed: u64) -> Result<(TrajectoryArrays, String), BridgeError> {
+        let task = task.to_owned();
+        self.call(move |py| {
+            let run = || -> PyResult<(TrajectoryArrays, String)> {
+                let result = py.import("cnfmp.sim.api")?.call_method1("expert", (task, seed))?;
+                let dict = result.cast::<PyDict>()?;
+                let item = |key: &str| -> PyResult<Bound<'_, PyAny>> {
+                    dict.get_item(key)?.ok_or_else(|| pyo3::exceptions::PyKeyError::new_err(key.to_owned()))
+                };
+                let vector = |key: &str| -> PyResult<Array1<f64>> { Ok(item(key)?.extract::<PyReadonlyArray1<f64>>()?.as_array().to_owned()) };
+                let matrix = |key: &str| -> PyResult<Array2<f64>> { Ok(item(key)?.extract::<PyReadonlyArray2<f64>>()?.as_array().to_owned()) };
+                let arrays = TrajectoryArrays {
+                    fps: item("fps")?.extract()?,
+                    t: vector("t")?,
+                    position: matrix("position")?,
+                    orientation: matrix("orientation")?,
+                    gripper: vector("gripper")?,
+                };
+                Ok((arrays, item("prompt")?.extract()?))
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })
+    }
+
+    /// Executes `trajectory` (sampled at [`Bridge::sim_control_hz`]) in the (task, seed)
+    /// scene by physics and returns the judge's verdict. A frame outside the workspace is
+    /// [`BridgeError::InvalidInput`].
+    pub fn sim_execute(&self, task: &str, seed: u64, trajectory: TrajectoryArrays) -> Result<ExecutionReport, BridgeError> {
+        let task = task.to_owned();
+        let json: String = self.call(move |py| {
+            let TrajectoryArrays { position, orientation, gripper, .. } = trajectory;
+            let args = (task, seed, position.into_pyarray(py), orientation.into_pyarray(py), gripper.into_pyarray(py));
+            let run = || -> PyResult<String> { py.import("cnfmp.sim.api")?.call_method1("execute", args)?.extract() };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })?;
+        serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("cnfmp.sim.api.execute: {err}")))
+    }
+
+    /// Writes a LeRobot v3.0 dataset of `episodes` expert demonstrations of `task` from seeds
+    /// `seed`, `seed + 1`, ... into `out` (which must not exist), with `workers` processes
+    /// and a progress bar on stderr.
+    pub fn dataset_generate(&self, task: &str, episodes: u64, seed: u64, out: &Path, workers: u32) -> Result<DatasetReport, BridgeError> {
+        self.call_json("cnfmp.data.generate", "generate_dataset", (task.to_owned(), episodes, seed, out.to_path_buf(), workers))
+    }
+}
