@@ -72,8 +72,9 @@ impl fmt::Display for TrajectoryError {
 
 impl std::error::Error for TrajectoryError {}
 
-/// The file layout, before validation.
+/// The file layout, before validation (serde names them in its messages).
 #[derive(Serialize, Deserialize)]
+#[serde(rename = "frame")]
 struct FileFrame {
     t: f64,
     position: [f64; 3],
@@ -82,6 +83,7 @@ struct FileFrame {
 }
 
 #[derive(Serialize, Deserialize)]
+#[serde(rename = "trajectory")]
 struct FileTrajectory {
     fps: f64,
     frames: Vec<FileFrame>,
