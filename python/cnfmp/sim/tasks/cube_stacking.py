@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cnfmp import prompts
 from cnfmp.sim.scene import scene_xml
 from cnfmp.sim.task import Scene, Task, Verdict, register
 from cnfmp.sim.tasks.common import (box_body, expert_path, grasp_yaw, pick_and_place,
@@ -30,7 +31,8 @@ TRANSIT_Z = 0.26
 
 def make_scene(seed: int) -> Scene:
     rng = np.random.default_rng([seed, 4])
-    colours = list(rng.permutation(["red", "green", "blue"]))
+    vocabulary = prompts.load("cube_stacking")
+    colours = [str(c) for c in rng.permutation(vocabulary["colours"])]
     xy = sample_positions(rng, 3, (-0.18, -0.10), (0.18, 0.14), 0.11)
     yaws = rng.uniform(-np.pi / 4, np.pi / 4, size=3)
     bodies = [f"cube_{c}" for c in colours]
@@ -38,10 +40,11 @@ def make_scene(seed: int) -> Scene:
         box_body(body, (x, y, HALF), yaw, (HALF, HALF, HALF), colour, mass=0.1)
         for body, colour, (x, y), yaw in zip(bodies, colours, xy, yaws))
     bottom, middle, top = colours
-    prompt = f"stack the {middle} cube on the {bottom} cube, then the {top} cube on the {middle} cube"
+    template = vocabulary["templates"][rng.integers(len(vocabulary["templates"]))]
+    prompt = template.format(bottom=bottom, middle=middle, top=top)
     params = {"colours": colours, "xy": xy.tolist(), "yaw": yaws.tolist()}
-    return Scene("cube_stacking", seed, scene_xml(xml), [f"{c} cube" for c in colours],
-                 [[b] for b in bodies], prompt, params)
+    objects = [vocabulary["object"].format(colour=c) for c in colours]
+    return Scene("cube_stacking", seed, scene_xml(xml), objects, [[b] for b in bodies], prompt, params)
 
 
 def expert(scene: Scene) -> dict:
