@@ -38,6 +38,7 @@ test-python:
 	$(PYTHON) -m pytest -q
 
 bench: setup  ## benchmarks that print figures (see docs/benchmarks.md)
+	bash scripts/bench-sim.sh
 	bash scripts/bench-setup.sh
 
 lock:  ## re-resolve requirements.lock from pyproject.toml (then run make setup)
