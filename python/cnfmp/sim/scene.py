@@ -65,9 +65,11 @@ def gripper_xml(position=HOME_POSITION, quat=HOME_QUAT) -> tuple[str, str, str]:
     return world, actuators, equality
 
 
-def scene_xml(objects: str, extra_equality: str = "", table_rgba: str = "0.72 0.62 0.50 1") -> str:
-    """A full MJCF model: the shared table, light, camera and gripper around task `objects`."""
-    gripper, actuators, equality = gripper_xml()
+def scene_xml(objects: str, extra_equality: str = "", table_rgba: str = "0.72 0.62 0.50 1",
+              gripper_position=HOME_POSITION, gripper_quat=HOME_QUAT) -> str:
+    """A full MJCF model: the shared table, light, camera and gripper around task `objects`,
+    the gripper starting at (`gripper_position`, `gripper_quat`), fully open."""
+    gripper, actuators, equality = gripper_xml(gripper_position, gripper_quat)
     return f"""
 <mujoco model="cnfmp">
   <option timestep="{TIMESTEP}" cone="elliptic" impratio="10" noslip_iterations="3"/>

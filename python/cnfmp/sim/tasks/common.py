@@ -62,8 +62,6 @@ def grasp_yaw(object_yaw: float, symmetry: float = np.pi / 2) -> float:
     return float((object_yaw + symmetry / 2) % symmetry - symmetry / 2)
 
 
-def start_waypoint() -> Waypoint:
-    return Waypoint(HOME_POSITION.copy(), HOME_QUAT.copy(), 1.0, 0.0)
 
 
 def pick_and_place(pick_xyz, pick_yaw, place_xyz, place_yaw, transit_z: float,
@@ -86,9 +84,11 @@ def pick_and_place(pick_xyz, pick_yaw, place_xyz, place_yaw, transit_z: float,
     ]
 
 
-def expert_path(waypoints: list[Waypoint]) -> dict:
-    """The expert trajectory through `waypoints` from the home pose, at the control rate."""
-    return geometry.path_through(start_waypoint(), waypoints, CONTROL_HZ)
+def expert_path(waypoints: list[Waypoint], start_position=HOME_POSITION, start_quat=HOME_QUAT) -> dict:
+    """The expert trajectory through `waypoints` at the control rate, from the gripper's start
+    pose (the home pose unless the task's scene starts it elsewhere), fully open."""
+    start = Waypoint(np.asarray(start_position, float), np.asarray(start_quat, float), 1.0, 0.0)
+    return geometry.path_through(start, waypoints, CONTROL_HZ)
 
 
 def released_and_at_rest(scene, log, names) -> list[str]:
