@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from cnfmp import geometry
+from cnfmp import geometry, prompts
 from cnfmp.sim.engine import weld_xml
 from cnfmp.sim.scene import scene_xml
 from cnfmp.sim.task import Scene, Task, Verdict, register
 from cnfmp.sim.tasks.common import (Waypoint, expert_path, fmt, released_and_at_rest, rgba,
                                     sample_positions)
 
-CUP_COLOURS = ("red", "green", "blue", "yellow", "purple", "orange")
 #: Wall segments per cup: few boxes keep contacts cheap (facts.md).
 WALL_SEGMENTS = 10
 WALL_THICKNESS = 0.0035
@@ -97,7 +96,8 @@ def cup_body(name: str, xy, radius: float, height: float, colour: str) -> str:
 def make_scene(seed: int) -> Scene:
     rng = np.random.default_rng([seed, 7])
     count = int(rng.integers(2, 4))
-    colours = [str(c) for c in rng.choice(CUP_COLOURS, size=count, replace=False)]
+    vocabulary = prompts.load("cup_stacking")
+    colours = [str(c) for c in rng.choice(vocabulary["colours"], size=count, replace=False)]
     clearances = rng.uniform(*CLEARANCE, size=count - 1)
     # Radii from the innermost cup outwards: each cup's inner flats sit `clearance` beyond
     # the corners of the cup that goes into it.
@@ -112,12 +112,13 @@ def make_scene(seed: int) -> Scene:
     xml = "\n    ".join(cup_body(body, p, r, h, c)
                         for body, p, r, h, c in zip(bodies, xy, radii, heights, colours))
     welds = "".join(weld_xml(body) for body in bodies)
-    steps = [f"the {inner} cup in the {outer} cup" for outer, inner in zip(colours, colours[1:])]
-    prompt = "put " + ", then ".join(steps)
+    steps = [vocabulary["step"].format(inner=inner, outer=outer) for outer, inner in zip(colours, colours[1:])]
+    template = vocabulary["templates"][rng.integers(len(vocabulary["templates"]))]
+    prompt = template.format(steps=vocabulary["joiner"].join(steps))
     params = {"colours": colours, "xy": xy.tolist(), "radius": [float(r) for r in radii],
               "height": heights.tolist(), "clearance": clearances.tolist()}
     return Scene("cup_stacking", seed, scene_xml(xml, extra_equality=welds),
-                 [f"{c} cup" for c in colours], [[b] for b in bodies], prompt, params,
+                 [vocabulary["object"].format(colour=c) for c in colours], [[b] for b in bodies], prompt, params,
                  weld_grasp=True)
 
 

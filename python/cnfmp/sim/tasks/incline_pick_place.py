@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cnfmp import geometry
+from cnfmp import geometry, prompts
 from cnfmp.sim.scene import scene_xml
 from cnfmp.sim.task import Scene, Task, Verdict, register
 from cnfmp.sim.tasks.common import (Waypoint, box_body, expert_path, fmt, grasp_yaw,
@@ -28,7 +28,6 @@ from cnfmp.sim.tasks.common import (Waypoint, box_body, expert_path, fmt, grasp_
 
 BLOCK_HALF = 0.02
 BLOCK_MASS = 0.08
-BLOCK_COLOURS = ("red", "green", "blue", "yellow", "purple", "orange")
 #: Half extents of the plate (m): 14 cm across the slope (x), 12 cm along it (y), 1.2 cm thick.
 PLATE_HALF = np.array([0.07, 0.06, 0.006])
 PLATE_RGBA = "0.45 0.47 0.52 1"
@@ -68,14 +67,16 @@ def make_scene(seed: int) -> Scene:
     block_xy = sample_positions(rng, 1, (-0.19, -0.11), (0.19, 0.15), MIN_BLOCK_TO_PLATE,
                                 avoid=[plate_xy])[0]
     block_yaw = rng.uniform(-np.pi / 4, np.pi / 4)
-    colour = str(rng.choice(BLOCK_COLOURS))
+    vocabulary = prompts.load("incline_pick_place")
+    colour = str(rng.choice(vocabulary["colours"]))
     params = {"colour": colour, "block_xy": block_xy.tolist(), "block_yaw": float(block_yaw),
               "plate_xy": plate_xy.tolist(), "plate_yaw": float(plate_yaw), "slope": float(slope)}
     block = box_body("block", (*block_xy, BLOCK_HALF), block_yaw, (BLOCK_HALF,) * 3, colour,
                      BLOCK_MASS, FRICTION)
-    prompt = f"put the {colour} block flat on the grey ramp"
+    template = vocabulary["templates"][rng.integers(len(vocabulary["templates"]))]
+    objects = [name.format(colour=colour) for name in vocabulary["objects"]]
     return Scene("incline_pick_place", seed, scene_xml(block + "\n    " + _plate_xml(params)),
-                 [f"{colour} block", "grey ramp"], [["block"], ["plate"]], prompt, params)
+                 objects, [["block"], ["plate"]], template.format(colour=colour), params)
 
 
 def _plate_pose(params: dict) -> tuple[geometry.Rotation, np.ndarray]:

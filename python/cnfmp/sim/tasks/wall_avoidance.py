@@ -21,7 +21,7 @@ import xml.etree.ElementTree as ElementTree
 
 import numpy as np
 
-from cnfmp import geometry
+from cnfmp import geometry, prompts
 from cnfmp.sim.scene import scene_xml
 from cnfmp.sim.task import Scene, Task, Verdict, register
 from cnfmp.sim.tasks.common import Waypoint, expert_path, fmt, rgba
@@ -64,11 +64,6 @@ START_Z_RANGE = (0.04, 0.08)
 RISE_S, CROSS_S, DESCEND_S, HOLD_S = 1.0, 1.5, 1.2, 0.4
 GOAL_TOLERANCE = 0.02
 GRIPPER_BODIES = ("gripper", "gripper_left", "gripper_right")
-PROMPTS = (
-    "move to the goal behind the wall",
-    "reach the goal marker on the other side of the wall",
-    "go over the wall to the goal marker",
-)
 
 
 @functools.cache
@@ -114,9 +109,10 @@ def make_scene(seed: int) -> Scene:
                       rng.uniform(*START_Z_RANGE)])
     params = {"wall_height": height, "wall_thickness": thickness, "wall_near_face_y": near_face,
               "goal": [*goal_xy.tolist(), GOAL_HOVER], "start": start.tolist()}
-    prompt = PROMPTS[rng.integers(len(PROMPTS))]
+    vocabulary = prompts.load("wall_avoidance")
+    prompt = vocabulary["templates"][rng.integers(len(vocabulary["templates"]))]
     xml = scene_xml(xml, gripper_position=start, gripper_quat=geometry.quat_down(REACH_YAW))
-    return Scene("wall_avoidance", seed, xml, ["wall", "goal marker"], [["wall"], ["goal"]], prompt, params)
+    return Scene("wall_avoidance", seed, xml, vocabulary["objects"], [["wall"], ["goal"]], prompt, params)
 
 
 def expert(scene: Scene) -> dict:
