@@ -72,6 +72,10 @@ class Task:
     expert: Callable[[Scene], dict]
     judge: Callable[[Scene, "object"], Verdict]
 
+    def __post_init__(self):
+        # One line without the "name:" lead of the module docstrings, for listings.
+        self.description = " ".join(self.description.split()).removeprefix(f"{self.name}: ")
+
 
 _TASKS: dict[str, Task] = {}
 

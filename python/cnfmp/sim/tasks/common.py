@@ -68,7 +68,8 @@ def pick_and_place(pick_xyz, pick_yaw, place_xyz, place_yaw, transit_z: float,
                    grip_opening: float = 1.0) -> list[Waypoint]:
     """Waypoints that pick at TCP position `pick_xyz` and release at `place_xyz`, moving
     between them at height `transit_z`, gripper pointing down; `grip_opening` is the open
-    command used while approaching (a narrower opening clears neighbours)."""
+    command used while approaching and on release (a narrower opening clears neighbours and
+    a box's walls)."""
     pick_xyz, place_xyz = np.asarray(pick_xyz, float), np.asarray(place_xyz, float)
     down_pick, down_place = geometry.quat_down(pick_yaw), geometry.quat_down(place_yaw)
     above = lambda xyz: np.array([xyz[0], xyz[1], transit_z])  # noqa: E731
@@ -79,8 +80,8 @@ def pick_and_place(pick_xyz, pick_yaw, place_xyz, place_yaw, transit_z: float,
         Waypoint(above(pick_xyz), down_pick, 0.0, 0.8),
         Waypoint(above(place_xyz), down_place, 0.0, 1.0),
         Waypoint(place_xyz, down_place, 0.0, 0.8),
-        Waypoint(place_xyz, down_place, 1.0, 0.4),
-        Waypoint(above(place_xyz), down_place, 1.0, 0.6),
+        Waypoint(place_xyz, down_place, grip_opening, 0.4),
+        Waypoint(above(place_xyz), down_place, grip_opening, 0.6),
     ]
 
 

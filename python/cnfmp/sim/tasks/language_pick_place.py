@@ -356,12 +356,7 @@ def expert(scene: Scene) -> dict:
     opening = min(1.0, (target["width"] / 2 + FINGER_MARGIN) / FINGER_TRAVEL)
     pick = (*target["xy"], target["grasp_height"])
     drop = (*place["xy"], place["surface"] + target["grasp_height"] + PLACE_CLEARANCE)
-    waypoints = pick_and_place(pick, yaw, drop, yaw, TRANSIT_Z, grip_opening=opening)
-    # Release with the same narrow opening as the approach, so the fingers stay clear of a
-    # box's walls (pick_and_place opens fully).
-    for release in waypoints[-2:]:
-        release.gripper = opening
-    return expert_path(waypoints)
+    return expert_path(pick_and_place(pick, yaw, drop, yaw, TRANSIT_Z, grip_opening=opening))
 
 
 # --- Judge ----------------------------------------------------------------------------------
