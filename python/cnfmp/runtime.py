@@ -22,8 +22,6 @@ ENV_DEFAULTS = {
     "HF_DATASETS_OFFLINE": "1",
     "HF_HUB_DISABLE_TELEMETRY": "1",
     "TOKENIZERS_PARALLELISM": "false",
-    # Offscreen rendering without a display; osmesa is the fallback (see doctor).
-    "MUJOCO_GL": "egl",
 }
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
@@ -56,6 +54,7 @@ def configure(threads: int = 1) -> dict:
 
     for key, value in ENV_DEFAULTS.items():
         os.environ.setdefault(key, value)
+    choose_gl_backend()
     for key in _THREAD_VARS:
         # libgomp reads these when torch loads it, so they must be set before the import.
         os.environ.setdefault(key, str(threads))
@@ -81,6 +80,26 @@ def configure(threads: int = 1) -> dict:
 
     _configured_threads = threads
     return {"threads": threads, "torch_loaded": torch_loaded}
+
+
+def choose_gl_backend() -> str:
+    """Sets MUJOCO_GL, unless the user did, to the first offscreen backend whose library
+    loads: EGL, else OSMesa (no display is needed for either). Returns the choice.
+
+    MuJoCo binds its backend when first imported, so this must run before that.
+    """
+    if "MUJOCO_GL" not in os.environ:
+        import ctypes
+
+        os.environ["MUJOCO_GL"] = "egl"
+        for backend, library in (("egl", "libEGL.so.1"), ("osmesa", "libOSMesa.so.8")):
+            try:
+                ctypes.CDLL(library)
+            except OSError:
+                continue
+            os.environ["MUJOCO_GL"] = backend
+            break
+    return os.environ["MUJOCO_GL"]
 
 
 def bridge_selftest(array):

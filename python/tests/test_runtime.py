@@ -62,3 +62,10 @@ def test_bridge_selftest_doubles_in_place():
 def test_bridge_selftest_rejects_other_types(bad):
     with pytest.raises(TypeError, match="float64 numpy array"):
         runtime.bridge_selftest(bad)
+
+
+def test_gl_backend_defaults_to_egl_when_its_library_loads():
+    code = "from cnfmp import runtime; print(runtime.choose_gl_backend())"
+    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "egl"  # setup-system installs libEGL

@@ -5,8 +5,8 @@ trajectory), `task` (the Task/Scene/Verdict types, registry, seed ranges), `task
 module per task), `api` (the entry points the Rust bridge calls).
 """
 
-import os
+from cnfmp.runtime import choose_gl_backend
 
 # MuJoCo binds its GL backend when first imported; without a display only EGL or OSMesa
 # work, so choose before anything below imports mujoco (the user's MUJOCO_GL wins).
-os.environ.setdefault("MUJOCO_GL", "egl")
+choose_gl_backend()
