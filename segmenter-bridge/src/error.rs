@@ -58,11 +58,12 @@ fn frames_of(formatted: &str) -> Vec<String> {
         let trimmed = line.trim();
         if trimmed.starts_with("File \"") {
             frames.push(trimmed.to_owned());
-        } else if let Some(frame) = frames.last_mut() {
-            if !trimmed.is_empty() && !trimmed.chars().all(|c| c == '^' || c == '~') {
-                frame.push_str("\n    ");
-                frame.push_str(trimmed);
-            }
+        } else if let Some(frame) = frames.last_mut()
+            && !trimmed.is_empty()
+            && !trimmed.chars().all(|c| c == '^' || c == '~')
+        {
+            frame.push_str("\n    ");
+            frame.push_str(trimmed);
         }
     }
     let skip = frames.len().saturating_sub(TRACEBACK_FRAMES);

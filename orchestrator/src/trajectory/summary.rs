@@ -53,13 +53,12 @@ pub fn summarize(trajectory: &Trajectory) -> Summary {
             _ => {}
         }
     }
-    let mut bounds = [[f64::INFINITY; 3], [f64::NEG_INFINITY; 3]];
+    let (mut low, mut high) = (frames[0].pose.position, frames[0].pose.position);
     for frame in frames {
-        for axis in 0..3 {
-            bounds[0][axis] = bounds[0][axis].min(frame.pose.position[axis]);
-            bounds[1][axis] = bounds[1][axis].max(frame.pose.position[axis]);
-        }
+        low = low.inf(&frame.pose.position);
+        high = high.sup(&frame.pose.position);
     }
+    let bounds = [low.into(), high.into()];
     let duration = trajectory.duration();
     Summary {
         frames: frames.len(),
