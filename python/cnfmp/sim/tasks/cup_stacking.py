@@ -22,7 +22,7 @@ from cnfmp import geometry, prompts
 from cnfmp.sim.engine import weld_xml
 from cnfmp.sim.scene import scene_xml
 from cnfmp.sim.task import Scene, Task, Verdict, register
-from cnfmp.sim.tasks.common import (Waypoint, expert_path, fmt, released_and_at_rest, rgba,
+from cnfmp.sim.tasks.common import (Waypoint, expert_path, fmt, pick_and_place, released_and_at_rest, rgba,
                                     sample_positions)
 
 #: Wall segments per cup: few boxes keep contacts cheap (facts.md).
@@ -44,7 +44,7 @@ RIM_GAP = 0.03
 
 #: The gripper takes each cup at the wall point facing -y, fingers closing along world y.
 GRASP_DIRECTION = np.array([0.0, -1.0])
-GRASP_QUAT = geometry.quat_down(0.0)
+GRASP_YAW = 0.0
 #: Fingertips this far below the rim when grasping (m).
 GRIP_DEPTH = 0.015
 #: Finger command while approaching and releasing: wide enough to clear the wall on both
@@ -131,17 +131,7 @@ def nest_waypoints(pick_xy, radius: float, height: float, target_xy, target_base
     pick = np.array([*(np.asarray(pick_xy) + grasp_offset), height - GRIP_DEPTH])
     place_z = max(outer_rim_z + RIM_MARGIN, target_base_z + MIN_DROP + height - GRIP_DEPTH)
     place = np.array([*(np.asarray(target_xy) + grasp_offset), place_z])
-    above = lambda xyz: np.array([xyz[0], xyz[1], TRANSIT_Z])  # noqa: E731
-    return [
-        Waypoint(above(pick), GRASP_QUAT, GRIP_OPEN, 1.0),
-        Waypoint(pick, GRASP_QUAT, GRIP_OPEN, 0.8),
-        Waypoint(pick, GRASP_QUAT, 0.0, 0.5),
-        Waypoint(above(pick), GRASP_QUAT, 0.0, 0.8),
-        Waypoint(above(place), GRASP_QUAT, 0.0, 1.0),
-        Waypoint(place, GRASP_QUAT, 0.0, 0.8),
-        Waypoint(place, GRASP_QUAT, GRIP_OPEN, 0.4),
-        Waypoint(above(place), GRASP_QUAT, GRIP_OPEN, 0.6),
-    ]
+    return pick_and_place(pick, GRASP_YAW, place, GRASP_YAW, TRANSIT_Z, grip_opening=GRIP_OPEN)
 
 
 def expert(scene: Scene) -> dict:
