@@ -41,9 +41,9 @@ class ExecutionLog:
         final_position / final_quat: name -> object pose after settling.
         final_speed: name -> linear speed (m/s) after settling.
         final_finger_contacts: object names touching a finger pad after settling.
-        release_step: first control step at which the command went from closed to open after
-            having been closed last (None if never), and release_quat the measured gripper
-            orientation there.
+        release_step: the first control step at which the gripper command went from closed
+            (< 0.5) to open (None if it never did); release_quat: the measured gripper
+            orientation at that step.
     """
 
     ee_position: np.ndarray
