@@ -14,8 +14,7 @@ TWO_CUP_SEEDS = [1_000_001, 1_000_003]
 
 
 def run(scene, trajectory):
-    verdict, _, _ = engine.run_episode(scene, trajectory, cup_stacking.judge)
-    return verdict
+    return engine.run_episode(scene, trajectory, cup_stacking.judge)
 
 
 def grasp_step(trajectory) -> int:

@@ -14,8 +14,7 @@ STEEP_SEED = 1_000_003
 
 
 def run(scene, trajectory):
-    verdict, _, _ = engine.run_episode(scene, trajectory, incline_pick_place.judge)
-    return verdict
+    return engine.run_episode(scene, trajectory, incline_pick_place.judge)
 
 
 def grasp_closed_step(trajectory) -> int:

@@ -16,8 +16,7 @@ SEEDS = [1_000_000, 1_000_002, 1_000_003]
 
 
 def run(scene, trajectory):
-    verdict, _, _ = engine.run_episode(scene, trajectory, task.judge)
-    return verdict
+    return engine.run_episode(scene, trajectory, task.judge)
 
 
 def expert_for_edited(scene, edit):

@@ -94,7 +94,7 @@ def execute(task: str, seed: int, position, orientation, gripper) -> str:
     """
     task_obj, scene = _scene(task, seed)
     trajectory = {"position": position, "orientation": orientation, "gripper": gripper}
-    verdict, _, _ = engine.run_episode(scene, trajectory, task_obj.judge)
+    verdict = engine.run_episode(scene, trajectory, task_obj.judge)
     frames = len(np.asarray(position))
     return json.dumps({
         "task": scene.task, "seed": scene.seed, "prompt": scene.prompt,

@@ -274,14 +274,12 @@ def _checked(trajectory: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return position, quat, np.clip(command, 0.0, 1.0)
 
 
-def run_episode(scene: Scene, trajectory: dict, judge, frame_every: int = 0):
-    """Executes `trajectory` in a fresh simulation of `scene` and judges it.
-
-    Returns (verdict, log, frames); frames as in :meth:`Simulation.execute`.
-    """
+def run_episode(scene: Scene, trajectory: dict, judge):
+    """Executes `trajectory` (see :meth:`Simulation.execute`) in a fresh simulation of
+    `scene` and returns `judge`'s verdict on it."""
     sim = Simulation(scene)
     try:
-        log, frames = sim.execute(trajectory, frame_every=frame_every)
+        log, _ = sim.execute(trajectory)
     finally:
         sim.close()
-    return judge(scene, log), log, frames
+    return judge(scene, log)

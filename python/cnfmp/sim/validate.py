@@ -29,7 +29,7 @@ def _run(args) -> tuple[int, bool, list[str]]:
     task_name, seed = args
     task = get_task(task_name)
     scene = task.scene(seed)
-    verdict, _, _ = engine.run_episode(scene, task.expert(scene), task.judge)
+    verdict = engine.run_episode(scene, task.expert(scene), task.judge)
     return seed, verdict.success, verdict.reasons
 
 
