@@ -4,7 +4,7 @@
 
 use clap::{Parser, Subcommand};
 
-use cnfmp::commands::{self, dataset::DatasetCommand, sim::SimCommand, trajectory::TrajectoryCommand};
+use cnfmp::commands::{self, dataset::DatasetCommand, model, sim::SimCommand, trajectory::TrajectoryCommand};
 
 /// Compositional Neural Field Movement Primitives: scene image + prompt -> robot trajectory.
 #[derive(Debug, Parser)]
@@ -31,6 +31,12 @@ enum Command {
     /// LeRobot datasets: generate demonstrations from the simulator.
     #[command(subcommand)]
     Dataset(DatasetCommand),
+    /// Train a compositional NF-MP model on a LeRobot dataset (progress on stderr).
+    Train(model::TrainArgs),
+    /// Predict a trajectory from a scene image, its coarse masks and the object names.
+    Predict(model::PredictArgs),
+    /// Evaluate a model on held-out simulator scenes: MED against the expert and success by physics.
+    Eval(model::EvalArgs),
 }
 
 fn main() {
@@ -40,6 +46,9 @@ fn main() {
         Command::Trajectory(command) => commands::trajectory::run(command),
         Command::Sim(command) => commands::sim::run(command),
         Command::Dataset(command) => commands::dataset::run(command),
+        Command::Train(args) => model::train(args),
+        Command::Predict(args) => model::predict(args),
+        Command::Eval(args) => model::eval(args),
     };
     if let Err(failure) = result {
         eprintln!("error: {failure}");

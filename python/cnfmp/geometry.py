@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-__all__ = ["Rotation", "Waypoint", "from_rotation", "min_jerk", "path_through", "quat_down",
-           "tilt_from_vertical", "to_rotation", "yaw_of"]
+__all__ = ["Rotation", "Waypoint", "from_rotation", "from_tangent", "min_jerk", "path_through",
+           "quat_down", "tilt_from_vertical", "to_rotation", "to_tangent", "yaw_of"]
 
 
 def to_rotation(quat_wxyz) -> Rotation:
@@ -26,6 +26,18 @@ def from_rotation(rotation: Rotation) -> np.ndarray:
     """scipy Rotation -> ``[w, x, y, z]`` (..., 4) with w >= 0."""
     q = rotation.as_quat()[..., [3, 0, 1, 2]]
     return np.where(q[..., :1] < 0, -q, q)
+
+
+def to_tangent(quat_wxyz, reference_wxyz) -> np.ndarray:
+    """Orientations ``[w, x, y, z]`` (..., 4) -> rotation vectors (..., 3, rad) in the tangent
+    space at `reference_wxyz` (4,): ``omega = log(R_ref^T R)``, the rotation that takes the
+    reference to R, expressed in the reference's frame (the models' rotation output)."""
+    return (to_rotation(reference_wxyz).inv() * to_rotation(quat_wxyz)).as_rotvec()
+
+
+def from_tangent(rotvec, reference_wxyz) -> np.ndarray:
+    """Inverse of :func:`to_tangent`: ``R = R_ref exp(omega)`` as ``[w, x, y, z]`` (..., 4)."""
+    return from_rotation(to_rotation(reference_wxyz) * Rotation.from_rotvec(np.asarray(rotvec, float)))
 
 
 def quat_down(yaw: float) -> np.ndarray:

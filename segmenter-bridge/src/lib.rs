@@ -17,6 +17,7 @@
 //! the exception type, message and the innermost traceback frames.
 
 mod calls;
+mod core;
 mod error;
 mod interpreter;
 mod sim;
@@ -26,6 +27,7 @@ mod worker;
 mod tests;
 
 pub use calls::{ArrayRoundTrip, DoctorCheck, DoctorReport, PythonInfo};
+pub use core::{ModelInfo, ObjectEstimate, Prediction, TrainLosses, TrainReport, TrainRequest};
 pub use error::{BridgeError, PythonException, TRACEBACK_FRAMES};
 pub use interpreter::BridgeConfig;
 pub use sim::{DatasetReport, ExecutionReport, SceneInfo, TaskInfo, TrajectoryArrays};

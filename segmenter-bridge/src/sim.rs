@@ -77,7 +77,7 @@ pub struct DatasetReport {
 
 impl Bridge {
     /// Calls `module.function(*args)`, which returns a JSON string, and decodes it.
-    fn call_json<T, A>(&self, module: &'static str, function: &'static str, args: A) -> Result<T, BridgeError>
+    pub(crate) fn call_json<T, A>(&self, module: &'static str, function: &'static str, args: A) -> Result<T, BridgeError>
     where
         T: DeserializeOwned + Send + 'static,
         A: for<'py> pyo3::call::PyCallArgs<'py> + Send + 'static,

@@ -2,6 +2,7 @@
 
 pub mod dataset;
 pub mod doctor;
+pub mod model;
 pub mod sim;
 pub mod trajectory;
 

@@ -16,7 +16,8 @@ use crate::trajectory::resample::{ResampleTarget, resample};
 pub enum SimCommand {
     /// List the benchmark tasks.
     Tasks,
-    /// Render the scene (gripper parked out of view): image.png, masks.png, objects.json.
+    /// Render the camera's view of the scene at the episode start: image.png, masks.png,
+    /// objects.json (the inputs of `cnfmp predict`).
     Render {
         #[command(flatten)]
         scene: SceneArgs,

@@ -5,6 +5,7 @@
 //! `{"fps": F, "frames": [{"t": s, "position": [x,y,z], "orientation": [w,x,y,z], "gripper": g}, ...]}`
 //! plus any other top-level keys (metadata), which are kept as they are.
 
+pub mod compare;
 pub mod resample;
 pub mod smooth;
 pub mod so3;

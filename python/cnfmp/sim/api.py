@@ -33,7 +33,9 @@ def _scene(task: str, seed: int):
 
 
 def render(task: str, seed: int, out_dir: str) -> str:
-    """Writes the scene image with the gripper parked out of view, for looking at and tests.
+    """Writes the camera's view of the scene at the start of an episode (the gripper at its
+    start pose, out of view for every task but wall_avoidance), exactly what frame 0 of a
+    dataset episode shows, so a model sees the same kind of image it was trained on.
 
     Files in `out_dir` (created; must not exist or be empty): ``image.png`` (128x128 RGB),
     ``masks.png`` (128x128 8-bit label map: 0 background, k the k-th object),
@@ -48,7 +50,7 @@ def render(task: str, seed: int, out_dir: str) -> str:
         raise InputError(f"{out_dir} already exists and is not an empty directory; choose a new --out")
     sim = engine.Simulation(scene)
     try:
-        rgb, labels = sim.render_scene()
+        rgb, labels = sim.render_rgb(), sim.render_labels()
     finally:
         sim.close()
     info = {"task": scene.task, "seed": scene.seed, "prompt": scene.prompt, "objects": scene.objects}

@@ -4,10 +4,11 @@ touching it.
 Variation (per seed): the wall's height (uniform in [0.08, 0.16] m), thickness ([0.01,
 0.05] m) and position (its near face at y in [-0.06, 0.04] m; taller walls stand nearer
 the camera), and the goal marker's position (x in [-0.15, 0.15] m; y between 4.5 cm behind
-the wall and 0.24 m, and never where the wall hides it from the camera), and the gripper's
-start: low in front of the wall (x in [-0.15, 0.15] m, 10-14 cm before the wall's near face,
-TCP 4-8 cm above the table), so the straight line to the goal runs through the wall. The
-wall is one static box spanning 0.84 m in x, so going around it would leave the workspace.
+the wall and 0.24 m, and never where the wall hides it from the camera). The gripper starts
+at a fixed ready pose low in front of the wall (TCP at x 0, y -0.20 m, 6 cm above the table;
+10-26 cm before the wall's near face), so the straight line to the goal runs through the
+wall. The robot's start pose is known and fixed, as in the paper's task; what varies is the
+scene. The wall is one static box spanning 0.84 m in x, so going around it would leave the workspace.
 Objects in label order: wall, goal marker (a flat disc on the table that nothing collides
 with). No grasp: the gripper stays open throughout.
 Success: no contact between the gripper and the wall at any physics step, and the final
@@ -55,10 +56,9 @@ CLEARANCE = 0.045
 #: Gripper yaw while reaching (rad): the fingers and the long side of the palm lie along
 #: the wall, so the gripper is thinnest across it.
 REACH_YAW = np.pi / 2
-#: Gripper start (m): x range, distance in front of the wall's near face, TCP height.
-START_X_RANGE = (-0.15, 0.15)
-START_BEFORE_WALL = (0.10, 0.14)
-START_Z_RANGE = (0.04, 0.08)
+#: Gripper start, the TCP's ready pose (m): in front of every wall, low enough that the
+#: straight line to any goal runs through the wall.
+START_POSITION = np.array([0.0, -0.20, 0.06])
 #: Durations (s): rising to the crossing height, crossing to above the goal, the descent,
 #: and holding still at the goal.
 RISE_S, CROSS_S, DESCEND_S, HOLD_S = 1.0, 1.5, 1.2, 0.4
@@ -105,8 +105,7 @@ def make_scene(seed: int) -> Scene:
            f'size="{fmt((WALL_HALF_LENGTH, thickness / 2, height / 2))}" rgba="{WALL_RGBA}"/></body>\n    '
            f'<body name="goal" pos="{fmt((*goal_xy, GOAL_THICKNESS / 2))}"><geom type="cylinder" '
            f'size="{fmt((GOAL_RADIUS, GOAL_THICKNESS / 2))}" rgba="{rgba("red")}" contype="0" conaffinity="0"/></body>')
-    start = np.array([rng.uniform(*START_X_RANGE), near_face - rng.uniform(*START_BEFORE_WALL),
-                      rng.uniform(*START_Z_RANGE)])
+    start = START_POSITION
     params = {"wall_height": height, "wall_thickness": thickness, "wall_near_face_y": near_face,
               "goal": [*goal_xy.tolist(), GOAL_HOVER], "start": start.tolist()}
     vocabulary = prompts.load("wall_avoidance")

@@ -1,0 +1,319 @@
+//! `cnfmp train | predict | eval`: the compositional NF-MP core from the command line.
+//!
+//! Training and inference run in Python (torch) through the bridge; this module validates
+//! arguments before the interpreter starts, writes outputs atomically, and runs the
+//! evaluation loop: render a held-out scene, predict from image + masks, execute by physics,
+//! compare with the expert (MED), report.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use clap::Args;
+use segmenter_bridge::{Bridge, ObjectEstimate, Prediction, TrainRequest};
+use serde::Serialize;
+use serde_json::{Map, Value};
+
+use super::print_stdout;
+use crate::failure::Failure;
+use crate::files::write_atomically;
+use crate::trajectory::Trajectory;
+use crate::trajectory::compare::mean_euclidean_distance_cm;
+use crate::trajectory::resample::{ResampleTarget, resample};
+
+/// First held-out scene seed (seeds below it are for training; see `cnfmp sim`).
+pub const FIRST_HELDOUT_SEED: u64 = 1_000_000;
+/// One past the last held-out seed.
+pub const HELDOUT_SEED_END: u64 = 2_000_000;
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// LeRobot v3.0 dataset (from `cnfmp dataset generate` or `cnfmp dataset convert`).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Model directory to create: config.json, model.safetensors, README.md (must not exist).
+    #[arg(long)]
+    out: PathBuf,
+    /// JSON file of config fields (see python/cnfmp/core/configuration_cnfmp.py); defaults otherwise.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Optimisation steps (overrides the config).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    steps: Option<u64>,
+    /// Seed of initialisation and sampling (overrides the config).
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+#[derive(Debug, Args)]
+pub struct PredictArgs {
+    /// Model directory written by `cnfmp train`.
+    #[arg(long)]
+    model: PathBuf,
+    /// Scene image (PNG or JPEG).
+    #[arg(long)]
+    image: PathBuf,
+    /// Coarse masks: an 8-bit label map of the image's size (0 background, k the k-th object).
+    #[arg(long)]
+    masks: PathBuf,
+    /// Object names in label order: a JSON list, or an object with an "objects" list (the
+    /// objects.json `cnfmp sim render` writes).
+    #[arg(long)]
+    objects: PathBuf,
+    /// Output trajectory JSON (replaced atomically), with the inferred weights and confidences.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// Model directory written by `cnfmp train`.
+    #[arg(long)]
+    model: PathBuf,
+    /// Task of the held-out scenes (the model's task).
+    #[arg(long)]
+    task: String,
+    /// Number of scenes.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    episodes: u64,
+    /// First scene seed; scenes use consecutive seeds, all held-out (1000000..=1999999).
+    #[arg(long, default_value_t = FIRST_HELDOUT_SEED)]
+    seed_start: u64,
+    /// Write the summary and per-episode results as JSON here (replaced atomically).
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+fn require_file(path: &Path, what: &str) -> Result<(), Failure> {
+    if path.is_file() { Ok(()) } else { Err(Failure::BadInput(format!("{what} {} does not exist or is not a file", path.display()))) }
+}
+
+pub fn train(args: TrainArgs) -> Result<(), Failure> {
+    if !args.dataset.is_dir() {
+        return Err(Failure::BadInput(format!("dataset {} is not a directory", args.dataset.display())));
+    }
+    if args.out.exists() {
+        return Err(Failure::BadInput(format!("{} already exists; models are never overwritten, choose a new --out", args.out.display())));
+    }
+    if let Some(config) = &args.config {
+        require_file(config, "config")?;
+    }
+    let command = std::iter::once("cnfmp".to_owned()).chain(std::env::args().skip(1)).collect::<Vec<_>>().join(" ");
+    let request = TrainRequest { dataset: args.dataset, out: args.out, config: args.config, steps: args.steps, seed: args.seed, command };
+    let report = Bridge::start_default()?.core_train(&request)?;
+    print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))
+}
+
+/// Object names from an objects.json: `["a", "b"]` or `{"objects": ["a", "b"], ...}`.
+fn read_objects(path: &Path) -> Result<Vec<String>, Failure> {
+    let text = fs::read_to_string(path).map_err(|err| Failure::BadInput(format!("cannot read objects {}: {err}", path.display())))?;
+    let value: Value = serde_json::from_str(&text).map_err(|err| Failure::BadInput(format!("objects {}: not JSON: {err}", path.display())))?;
+    let list = match &value {
+        Value::Object(map) => map.get("objects").cloned().unwrap_or(Value::Null),
+        other => other.clone(),
+    };
+    serde_json::from_value::<Vec<String>>(list)
+        .map_err(|_| Failure::BadInput(format!("objects {}: expected a list of names or an object with an \"objects\" list", path.display())))
+}
+
+fn read_bytes(path: &Path, what: &str) -> Result<Vec<u8>, Failure> {
+    fs::read(path).map_err(|err| Failure::BadInput(format!("cannot read {what} {}: {err}", path.display())))
+}
+
+/// The prediction's trajectory, validated by the Rust trajectory code (the diagnostics stay
+/// as metadata).
+fn trajectory_of(prediction: &Prediction) -> Result<Trajectory, Failure> {
+    Trajectory::from_json_str(&prediction.json).map_err(|err| Failure::Environment(format!("the model produced an invalid trajectory: {err}")))
+}
+
+fn describe_objects(objects: &[ObjectEstimate]) -> String {
+    objects
+        .iter()
+        .map(|o| match (o.present, o.psnr_db) {
+            (true, Some(psnr)) => format!("{} (fit {psnr:.1} dB)", o.name),
+            _ => format!("{} (absent)", o.name),
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+pub fn predict(args: PredictArgs) -> Result<(), Failure> {
+    let image = read_bytes(&args.image, "image")?;
+    let masks = read_bytes(&args.masks, "masks")?;
+    let objects = read_objects(&args.objects)?;
+    for (file, what) in [("config.json", "config"), ("model.safetensors", "weights")] {
+        if !args.model.join(file).is_file() {
+            return Err(Failure::BadInput(format!("{} is not a model directory: its {what} ({file}) is missing", args.model.display())));
+        }
+    }
+    let prediction = Bridge::start_default()?.core_predict(&args.model, image, masks, objects)?;
+    let trajectory = trajectory_of(&prediction)?;
+    write_atomically(&args.out, trajectory.to_json_string().as_bytes())?;
+    let total = prediction.timings_ms.get("total").and_then(Value::as_f64).unwrap_or(f64::NAN);
+    eprintln!(
+        "{}: {} frames at {} Hz, {:.2} s; objects: {}; inference {total:.0} ms",
+        args.out.display(),
+        trajectory.frames.len(),
+        trajectory.fps,
+        trajectory.duration(),
+        describe_objects(&prediction.objects)
+    );
+    Ok(())
+}
+
+/// One evaluated scene.
+#[derive(Debug, Serialize)]
+struct Episode {
+    seed: u64,
+    success: bool,
+    reasons: Vec<String>,
+    med_cm: f64,
+    /// Wall time of the predict call (ms), model loaded (the first call includes loading).
+    latency_ms: f64,
+    scene_psnr_db: f64,
+    objects: Vec<ObjectEstimate>,
+    timings_ms: Map<String, Value>,
+}
+
+#[derive(Debug, Serialize)]
+struct EvalSummary {
+    model: String,
+    task: String,
+    episodes: usize,
+    seed_start: u64,
+    success_rate: f64,
+    med_cm: f64,
+    /// Over every episode but the first (which loads the model).
+    latency_ms_p50: f64,
+    latency_ms_p95: f64,
+    scene_psnr_db_mean: f64,
+    mask_iou_mean: f64,
+    wall_time_s: f64,
+    per_episode: Vec<Episode>,
+}
+
+/// The q-quantile (0..=1) of `values` by linear interpolation; NaN when empty.
+fn quantile(values: &[f64], q: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let position = q * (sorted.len() - 1) as f64;
+    let (low, high) = (position.floor() as usize, position.ceil() as usize);
+    sorted[low] + (sorted[high] - sorted[low]) * (position - low as f64)
+}
+
+fn mean(values: impl Iterator<Item = f64>) -> f64 {
+    let (sum, count) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    if count == 0 { f64::NAN } else { sum / count as f64 }
+}
+
+pub fn eval(args: EvalArgs) -> Result<(), Failure> {
+    let last = args.seed_start.checked_add(args.episodes - 1).unwrap_or(u64::MAX);
+    if args.seed_start < FIRST_HELDOUT_SEED || last >= HELDOUT_SEED_END {
+        return Err(Failure::BadInput(format!(
+            "evaluation scenes must be held-out: seeds {}..={last} are not all within {FIRST_HELDOUT_SEED}..={}",
+            args.seed_start,
+            HELDOUT_SEED_END - 1
+        )));
+    }
+    require_file(&args.model.join("config.json"), "model config")?;
+    let started = Instant::now();
+    let bridge = Bridge::start_default()?;
+    let control_hz = bridge.sim_control_hz()?;
+    let scratch = tempfile::tempdir().map_err(|err| Failure::Environment(format!("cannot create a temporary directory: {err}")))?;
+    let mut episodes = Vec::new();
+    for (index, seed) in (args.seed_start..=last).enumerate() {
+        let scene_dir = scratch.path().join(format!("scene-{seed}"));
+        let scene = bridge.sim_render(&args.task, seed, &scene_dir)?;
+        let image = read_bytes(&scene_dir.join("image.png"), "rendered image")?;
+        let masks = read_bytes(&scene_dir.join("masks.png"), "rendered masks")?;
+        let call = Instant::now();
+        let prediction = bridge.core_predict(&args.model, image, masks, scene.objects.clone())?;
+        let latency_ms = call.elapsed().as_secs_f64() * 1e3;
+        if prediction.model.task != args.task {
+            return Err(Failure::BadInput(format!(
+                "the model at {} was trained on {}, not {}",
+                args.model.display(),
+                prediction.model.task,
+                args.task
+            )));
+        }
+        let predicted = resample(&trajectory_of(&prediction)?, ResampleTarget::Fps(control_hz))?;
+        let verdict = bridge.sim_execute(&args.task, seed, predicted.to_arrays())?;
+        let (expert, _) = bridge.sim_expert(&args.task, seed)?;
+        let expert = Trajectory::from_arrays(&expert, Map::new())
+            .map_err(|err| Failure::Environment(format!("the {} expert produced an invalid trajectory: {err}", args.task)))?;
+        let med_cm = mean_euclidean_distance_cm(&predicted, &expert).map_err(Failure::Environment)?;
+        episodes.push(Episode {
+            seed,
+            success: verdict.success,
+            reasons: verdict.reasons,
+            med_cm,
+            latency_ms,
+            scene_psnr_db: prediction.scene_psnr_db,
+            objects: prediction.objects,
+            timings_ms: prediction.timings_ms,
+        });
+        let successes = episodes.iter().filter(|e| e.success).count();
+        let episode = episodes.last().expect("just pushed");
+        eprintln!(
+            "[{}/{}] seed {seed}: {} MED {:.2} cm, {:.0} ms{}  (success so far {successes}/{})",
+            index + 1,
+            args.episodes,
+            if episode.success { "success" } else { "FAIL" },
+            episode.med_cm,
+            episode.latency_ms,
+            if episode.success { String::new() } else { format!(" ({})", episode.reasons.join("; ")) },
+            episodes.len()
+        );
+    }
+    let warm: Vec<f64> = episodes.iter().skip(usize::from(episodes.len() > 1)).map(|e| e.latency_ms).collect();
+    let ious = episodes.iter().flat_map(|e| e.objects.iter().filter_map(|o| o.mask_iou));
+    let summary = EvalSummary {
+        model: args.model.display().to_string(),
+        task: args.task.clone(),
+        episodes: episodes.len(),
+        seed_start: args.seed_start,
+        success_rate: episodes.iter().filter(|e| e.success).count() as f64 / episodes.len() as f64,
+        med_cm: mean(episodes.iter().map(|e| e.med_cm)),
+        latency_ms_p50: quantile(&warm, 0.5),
+        latency_ms_p95: quantile(&warm, 0.95),
+        scene_psnr_db_mean: mean(episodes.iter().map(|e| e.scene_psnr_db)),
+        mask_iou_mean: mean(ious),
+        wall_time_s: started.elapsed().as_secs_f64(),
+        per_episode: episodes,
+    };
+    if let Some(path) = &args.json {
+        write_atomically(path, serde_json::to_string_pretty(&summary).expect("summary serialises").as_bytes())?;
+    }
+    print_stdout(&format!(
+        "{} on {} held-out {} scenes (seeds {}..={last}): success {:.2}, MED {:.2} cm, latency p50 {:.0} ms / p95 {:.0} ms, \
+         scene PSNR {:.1} dB, mask IoU {:.2}",
+        summary.model,
+        summary.episodes,
+        summary.task,
+        summary.seed_start,
+        summary.success_rate,
+        summary.med_cm,
+        summary.latency_ms_p50,
+        summary.latency_ms_p95,
+        summary.scene_psnr_db_mean,
+        summary.mask_iou_mean
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::quantile;
+
+    #[test]
+    fn quantiles_interpolate() {
+        let values = [4.0, 1.0, 3.0, 2.0];
+        assert_eq!(quantile(&values, 0.0), 1.0);
+        assert_eq!(quantile(&values, 1.0), 4.0);
+        assert!((quantile(&values, 0.5) - 2.5).abs() < 1e-12);
+        assert!(quantile(&[], 0.5).is_nan());
+    }
+}

@@ -1,0 +1,131 @@
+"""Entry points of the core model for the Rust bridge (and notebooks): train and predict.
+
+Loaded models stay resident (keyed by directory and file modification times), so a server or
+an evaluation loop pays for loading once. Bad input raises :class:`cnfmp.errors.InputError`.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import time
+
+import numpy as np
+
+from cnfmp.core import training
+from cnfmp.core.inference import Predictor
+from cnfmp.core.modeling_cnfmp import CONFIG_FILE, WEIGHTS_FILE, load_model
+from cnfmp.errors import InputError
+
+__all__ = ["decode_image", "decode_labels", "predict", "train"]
+
+_LOADED: dict[str, tuple[tuple, Predictor]] = {}
+
+#: Largest image side accepted (px); the fields work at 64 px, so anything larger is waste.
+MAX_IMAGE_SIDE = 4096
+
+
+def train(dataset_dir: str, out_dir: str, config_path: str | None, steps: int | None, seed: int | None,
+          command: str) -> str:
+    """See :func:`cnfmp.core.training.train`; progress goes to stderr."""
+    return training.train(os.fspath(dataset_dir), os.fspath(out_dir), None if config_path is None else os.fspath(config_path),
+                          steps, seed, command=command)
+
+
+def predictor(model_dir: str) -> Predictor:
+    """The resident predictor of `model_dir`, (re)loaded when its files changed."""
+    model_dir = os.path.abspath(os.fspath(model_dir))
+    try:
+        key = tuple(os.stat(os.path.join(model_dir, name)).st_mtime_ns for name in (CONFIG_FILE, WEIGHTS_FILE))
+    except OSError:
+        key = None  # load_model names what is missing
+    cached = _LOADED.get(model_dir)
+    if cached is None or cached[0] != key or key is None:
+        _LOADED[model_dir] = (key, Predictor(load_model(model_dir)))
+    return _LOADED[model_dir][1]
+
+
+def _open_image(data: bytes, what: str):
+    from PIL import Image, UnidentifiedImageError
+
+    if not data:
+        raise InputError(f"{what} is empty")
+    try:
+        image = Image.open(io.BytesIO(data))
+        if max(image.size) > MAX_IMAGE_SIDE or min(image.size) < 1:
+            raise InputError(f"{what} is {image.size[0]}x{image.size[1]}; sides must be 1..{MAX_IMAGE_SIDE} px")
+        image.load()
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as err:
+        raise InputError(f"{what} is not a readable image: {err}") from err
+    return image
+
+
+def decode_image(data: bytes, what: str = "image") -> np.ndarray:
+    """Encoded image bytes (PNG, JPEG, ...) -> (H, W, 3) uint8 RGB."""
+    return np.asarray(_open_image(data, what).convert("RGB"))
+
+
+def decode_labels(data: bytes, what: str = "masks") -> np.ndarray:
+    """An 8-bit single-channel label map (PNG) -> (H, W) uint8."""
+    image = _open_image(data, what)
+    if image.mode not in ("L", "P"):
+        raise InputError(f"{what} must be an 8-bit single-channel label map (0 background, k the k-th object), "
+                         f"got image mode {image.mode}")
+    return np.asarray(image, dtype=np.uint8)
+
+
+def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[str], seed: int = 0) -> str:
+    """Predicts the trajectory for a scene image and its coarse masks.
+
+    Args:
+        model_dir: a directory written by ``cnfmp train``.
+        image_png: the encoded scene image; masks_png: the encoded label map (same size).
+        objects: object names in label order (``objects.json``'s list).
+        seed: seed of inference's random search candidates.
+
+    Returns the trajectory JSON of design.md, ``{"fps", "frames": [{"t", "position",
+    "orientation", "gripper"}]}``, plus ``"model"``, ``"objects"`` (per slot: name, present,
+    simplex weights, reconstruction MSE and PSNR as confidence, mask IoU), ``"scene_psnr_db"``
+    and ``"timings_ms"``.
+    """
+    started = time.perf_counter()
+    image, labels = decode_image(image_png), decode_labels(masks_png)
+    highest = int(labels.max(initial=0))
+    if len(objects) < highest:
+        raise InputError(f"the objects list names {len(objects)} object(s) but the masks use label {highest}; "
+                         "name every labelled object, in label order")
+    model = predictor(model_dir)
+    c = model.config
+    if len(objects) > c.num_objects:
+        raise InputError(f"{len(objects)} objects given but the model ({c.task}) has {c.num_objects} object slot(s): "
+                         f"{', '.join(c.object_names)}")
+    for slot in range(c.num_objects):
+        if not (labels == slot + 1).any() and not c.slot_can_be_absent[slot]:
+            raise InputError(f"the masks have no pixels of object {slot + 1} ({c.object_names[slot]}), "
+                             f"which every training scene of this model had")
+    decoded = time.perf_counter()
+    result = model.predict(image, labels, seed=seed)
+    traj = result["trajectory"]
+    frames = [{"t": round(float(t), 6), "position": p.round(6).tolist(), "orientation": q.round(6).tolist(),
+               "gripper": round(float(g), 6)}
+              for t, p, q, g in zip(traj["t"], traj["position"], traj["orientation"], traj["gripper"])]
+    slots = []
+    for slot in range(c.num_objects):
+        present = bool(result["present"][slot])
+        slots.append({
+            "slot": slot + 1, "name": objects[slot] if slot < len(objects) else c.object_names[slot],
+            "present": present,
+            "weights": result["weights"][slot].round(5).tolist() if present else None,
+            "reconstruction_mse": result["object_mse"][slot], "psnr_db": result["object_psnr_db"][slot],
+            "mask_iou": result["mask_iou"][slot],
+        })
+    seconds = result["seconds"]
+    return json.dumps({
+        "fps": c.output_fps, "frames": frames,
+        "model": {"dir": os.path.abspath(model_dir), "task": c.task, "type": c.model_type},
+        "objects": slots, "scene_psnr_db": result["scene_psnr_db"],
+        "timings_ms": {"decode_inputs": 1000 * (decoded - started), "infer_latents": 1000 * seconds["infer"],
+                       "decode_trajectory": 1000 * seconds["decode"],
+                       "total": 1000 * (time.perf_counter() - started)},
+    })

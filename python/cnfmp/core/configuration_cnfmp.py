@@ -1,0 +1,151 @@
+"""Configuration of the compositional neural-field movement primitive (paper §II-B).
+
+One dataclass holds every choice that shapes the model, its training and its inference. It is
+saved as ``config.json`` beside the weights; loading a model rebuilds the networks from it, so
+a model directory is self-describing. Fields marked "(from data)" are filled in by training
+from the dataset and need not be set in a config file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+
+from cnfmp.errors import InputError
+
+MODEL_TYPE = "cnfmp"
+
+
+@dataclass
+class CnfmpConfig:
+    # ---- what the model is for (from data) ----
+    #: Task the demonstrations came from (informative; the model itself is task-agnostic).
+    task: str = ""
+    #: Object slots, in label order (label k of a mask = slot k-1). A scene may leave trailing
+    #: slots empty (e.g. two cups of at most three); the slot then uses a learned "absent" latent.
+    num_objects: int = 0
+    #: Object names of the first demonstration, per slot (for cards and listings).
+    object_names: list[str] = field(default_factory=list)
+    #: Whether each slot was ever empty in training (an empty slot is only accepted then).
+    slot_can_be_absent: list[bool] = field(default_factory=list)
+    #: Trajectory duration (s): the longest demonstration; shorter ones are held at their end.
+    duration_s: float = 0.0
+    #: Orientation the rotation outputs are relative to, quaternion [w, x, y, z] (the first
+    #: demonstration's start orientation).
+    reference_quat: list[float] = field(default_factory=lambda: [1.0, 0.0, 0.0, 0.0])
+    #: Per-axis mean and standard deviation (m) of the demonstrated positions; the generator
+    #: works in these normalised units.
+    position_mean: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    position_std: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0])
+
+    # ---- scene fields ----
+    #: Side (px) of the square image the fields are fit to (the 128 px camera image is
+    #: area-downsampled to it).
+    field_resolution: int = 64
+    #: Dimension of each object's latent z_i.
+    latent_dim: int = 16
+    #: Endpoint latents per object (latent relabeling): z_i is a convex combination of these.
+    num_endpoints: int = 6
+    #: Width of the hidden layers of every coordinate MLP (deformation, appearance, background).
+    field_width: int = 64
+    #: Hidden layers of each coordinate MLP.
+    field_layers: int = 3
+    #: Positional-encoding octaves of the deformation fields (kept low: deformations are smooth).
+    deformation_octaves: int = 2
+    #: Positional-encoding octaves of the appearance and background fields; annealed in
+    #: coarse-to-fine over the first `anneal_fraction` of training.
+    appearance_octaves: int = 6
+    #: Fraction of the training steps over which the appearance octaves are switched on.
+    anneal_fraction: float = 0.4
+    #: Weight of the Lipschitz penalty (product of the learned per-layer bounds) on the
+    #: latent-to-deformation networks.
+    lipschitz_weight: float = 1e-6
+
+    # ---- object-centric pixel sampling ----
+    #: Pixels drawn per step from each object's dilated coarse mask.
+    pixels_per_object: int = 192
+    #: Pixels drawn per step uniformly over the image.
+    uniform_pixels: int = 256
+    #: Dilation (px at field resolution) of the coarse masks before sampling and inference.
+    mask_dilation: int = 3
+
+    # ---- motion ----
+    #: Positional-encoding octaves of normalised time t in [0, 1].
+    time_octaves: int = 7
+    #: Width of the trajectory generator's hidden layers.
+    generator_width: int = 128
+    #: Hidden layers of the trajectory generator.
+    generator_layers: int = 3
+    #: Width of the relevance-score network s_i(t) (temporal gating).
+    gating_width: int = 32
+    #: Whether the temporal gating is learned; False gives the ablation with constant, equal
+    #: weights (z(t) = mean of the object latents).
+    temporal_gating: bool = True
+    #: Time samples per demonstration per training step.
+    time_samples: int = 64
+    #: Loss weights: trajectory position, rotation (rad), gripper.
+    position_weight: float = 1.0
+    rotation_weight: float = 1.0
+    gripper_weight: float = 0.3
+    #: Weight of the image losses (composite + per-object) relative to the trajectory loss.
+    image_weight: float = 1.0
+
+    # ---- training ----
+    #: Optimisation steps (one seeded run).
+    steps: int = 3000
+    #: Demonstrations per step (all of them when the dataset is smaller).
+    batch_demos: int = 16
+    #: Adam learning rate of the networks and of the endpoint and demonstration latents.
+    learning_rate: float = 2e-3
+    latent_learning_rate: float = 1e-2
+    #: Seed of the weights' initialisation and of the pixel and time sampling.
+    seed: int = 0
+
+    # ---- inference ----
+    #: Candidates of the cheap search: random simplex points (plus every training
+    #: demonstration's weights and the simplex vertices).
+    search_candidates: int = 96
+    #: Best candidates refined by gradient steps (multi-start).
+    search_starts: int = 4
+    #: Adam steps on the simplex logits per start, and their learning rate.
+    refine_steps: int = 30
+    refine_learning_rate: float = 0.15
+    #: Most pixels of an object's dilated mask used by inference.
+    inference_pixels: int = 384
+    #: Rate (Hz) of the decoded trajectory.
+    output_fps: float = 50.0
+
+    model_type: str = MODEL_TYPE
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2) + "\n"
+
+    @classmethod
+    def from_dict(cls, values: dict, source: str = "config") -> "CnfmpConfig":
+        """A config from a dict; unknown keys are an InputError naming them (a typo in a config
+        file must not be silently ignored)."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise InputError(f"{source}: unknown field(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+        if values.get("model_type", MODEL_TYPE) != MODEL_TYPE:
+            raise InputError(f"{source}: model_type is {values['model_type']!r}, expected {MODEL_TYPE!r}")
+        config = cls(**values)
+        config.check(source)
+        return config
+
+    def check(self, source: str = "config") -> None:
+        """InputError for values no model can be built with."""
+        positive = ["field_resolution", "latent_dim", "num_endpoints", "field_width", "field_layers",
+                    "pixels_per_object", "uniform_pixels", "generator_width", "generator_layers",
+                    "gating_width", "time_samples", "steps", "batch_demos", "search_candidates",
+                    "search_starts", "inference_pixels"]
+        for name in positive:
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                raise InputError(f"{source}: {name} must be a whole number >= 1, got {getattr(self, name)!r}")
+        for name in ["learning_rate", "latent_learning_rate", "output_fps"]:
+            if not getattr(self, name) > 0:
+                raise InputError(f"{source}: {name} must be > 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.anneal_fraction <= 1.0:
+            raise InputError(f"{source}: anneal_fraction must be in [0, 1], got {self.anneal_fraction!r}")

@@ -1,0 +1,131 @@
+"""Demonstrations for the core models, read from a LeRobot v3.0 dataset by lerobot itself.
+
+A demonstration is what the method trains on (paper §II): the scene image and coarse object
+masks of the episode's first frame, and the whole commanded end-effector trajectory. Also
+the per-scene inputs of inference (image + label map -> tensors at field resolution), shared
+by training and prediction so both see identical preprocessing.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from cnfmp.errors import InputError
+
+IMAGE_KEY = "observation.images.front"
+
+
+@dataclass
+class Demonstrations:
+    """Demonstrations of one task.
+
+    Attributes:
+        task: task name (from ``annotation.scene``).
+        fps: frame rate of the trajectories (Hz).
+        images: (B, H, W, 3) uint8 first-frame camera images.
+        masks: (B, H, W) uint8 label maps (0 background, k = objects[b][k-1]).
+        objects: per demonstration, the object names in label order.
+        trajectories: per demonstration, (T_b, 8) float64 ``x y z qw qx qy qz gripper``
+            commanded poses at `fps`, starting with the measured start pose.
+        seeds: scene seeds (-1 where the dataset does not record them).
+        prompts: the language instruction of each demonstration.
+    """
+
+    task: str
+    fps: float
+    images: np.ndarray
+    masks: np.ndarray
+    objects: list[list[str]]
+    trajectories: list[np.ndarray]
+    seeds: list[int]
+    prompts: list[str]
+
+    def __len__(self) -> int:
+        return len(self.trajectories)
+
+
+def load_demonstrations(dataset_dir: str) -> Demonstrations:
+    """Reads every episode of the LeRobot dataset at `dataset_dir`.
+
+    The trajectory of an episode is its first measured state followed by the ``action`` of
+    every frame (the commanded pose and gripper of the next frame). Raises InputError when
+    the directory is not a LeRobot dataset with the features the core needs.
+    """
+    if not os.path.isfile(os.path.join(dataset_dir, "meta", "info.json")):
+        raise InputError(f"{dataset_dir} is not a LeRobot dataset (no meta/info.json)")
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    try:
+        dataset = LeRobotDataset(f"local/{os.path.basename(os.path.abspath(dataset_dir))}", root=dataset_dir)
+    except Exception as err:  # lerobot raises many types for a damaged dataset
+        raise InputError(f"{dataset_dir}: lerobot cannot read this dataset: {err}") from err
+    needed = {IMAGE_KEY, "observation.state", "action", "annotation.masks", "annotation.objects"}
+    missing = sorted(needed - set(dataset.features))
+    if missing:
+        raise InputError(f"{dataset_dir}: the dataset lacks feature(s) {', '.join(missing)} "
+                         "(datasets written by `cnfmp dataset generate` or `cnfmp dataset convert` have them)")
+    if dataset.num_episodes == 0:
+        raise InputError(f"{dataset_dir}: the dataset has no episodes")
+
+    columns = dataset.hf_dataset.with_format(None).select_columns(["observation.state", "action"])[:]
+    state, action = np.asarray(columns["observation.state"], float), np.asarray(columns["action"], float)
+    starts = dataset.meta.episodes["dataset_from_index"]
+    ends = dataset.meta.episodes["dataset_to_index"]
+    images, masks, objects, trajectories, seeds, prompts, tasks = [], [], [], [], [], [], set()
+    for start, end in zip(starts, ends):
+        first = dataset[int(start)]
+        images.append((first[IMAGE_KEY].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
+        masks.append(np.asarray(first["annotation.masks"], dtype=np.uint8))
+        objects.append(list(json.loads(first["annotation.objects"])))
+        prompts.append(str(first["task"]))
+        scene = json.loads(first.get("annotation.scene", "{}") or "{}")
+        seeds.append(int(scene.get("seed", -1)))
+        tasks.add(scene.get("task", ""))
+        trajectories.append(np.concatenate([state[start:start + 1], action[start:end]]))
+    if len(tasks) > 1:
+        raise InputError(f"{dataset_dir}: episodes of several tasks ({', '.join(sorted(tasks))}); train one task per model")
+    return Demonstrations(tasks.pop(), float(dataset.fps), np.stack(images), np.stack(masks), objects,
+                          trajectories, seeds, prompts)
+
+
+def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolution: int, dilation: int) -> dict:
+    """One scene's image and coarse masks prepared for the fields.
+
+    Args:
+        image: (H, W, 3) uint8 camera image; labels: (H, W) uint8 label map (0 background,
+            k the k-th object); num_objects: the model's object slots.
+        resolution: field resolution R (px); dilation: mask dilation at that resolution (px).
+
+    Returns ``{"rgb": (R, R, 3) float32 in [0, 1], "masks": (N, R, R) bool coarse masks,
+    "dilated": (N, R, R) bool, "colour": (N, 3) float32 median colour of each mask,
+    "present": (N,) bool}``. InputError for mismatched sizes or labels beyond the slots.
+    """
+    import cv2
+
+    image, labels = np.asarray(image), np.asarray(labels)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise InputError(f"image must be an (H, W, 3) uint8 RGB image, got shape {image.shape} dtype {image.dtype}")
+    if labels.shape != image.shape[:2]:
+        raise InputError(f"the masks are {labels.shape[1]}x{labels.shape[0]} but the image is "
+                         f"{image.shape[1]}x{image.shape[0]}; they must have the same size")
+    highest = int(labels.max(initial=0))
+    if highest > num_objects:
+        raise InputError(f"the masks use label {highest} but the model has {num_objects} object slot(s)")
+    rgb = cv2.resize(image, (resolution, resolution), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+    kernel = np.ones((2 * dilation + 1, 2 * dilation + 1), np.uint8)
+    masks, dilated, colours = [], [], []
+    for k in range(1, num_objects + 1):
+        full = labels == k
+        # Coverage >= 1/4 of a field pixel counts, so thin or far objects keep their mask.
+        coverage = cv2.resize(full.astype(np.float32), (resolution, resolution), interpolation=cv2.INTER_AREA)
+        small = coverage >= 0.25
+        masks.append(small)
+        dilated.append(cv2.dilate(small.astype(np.uint8), kernel) > 0)
+        colours.append(np.median(image[full], axis=0) / 255.0 if full.any() else np.zeros(3))
+    return {"rgb": rgb, "masks": np.stack(masks), "dilated": np.stack(dilated),
+            "colour": np.asarray(colours, np.float32), "present": np.array([m.any() for m in masks])}

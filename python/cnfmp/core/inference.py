@@ -1,0 +1,133 @@
+"""Inference: a new scene image + coarse masks -> object latents -> trajectory.
+
+The networks stay frozen. For each present object only its simplex weights are optimised,
+against the reconstruction of its dilated masked region by its expert and the background:
+a cheap search over candidates (every training demonstration's weights, the simplex vertices
+and random points) picks the best few, which Adam refines in parallel (multi-start). The
+final reconstruction error of each object is its confidence signal.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from cnfmp.core import data as core_data
+from cnfmp.core.modeling_cnfmp import CnfmpModel, decode_trajectory, output_times, pixel_coords
+
+
+def psnr_db(mse: float) -> float:
+    """Peak signal-to-noise ratio (dB) of an MSE on [0, 1] images."""
+    return float(10.0 * np.log10(1.0 / max(mse, 1e-10)))
+
+
+class Predictor:
+    """A loaded model ready to predict; holds the pixel grid and the background, which do not
+    depend on the scene."""
+
+    def __init__(self, model: CnfmpModel):
+        self.model = model.eval()
+        for p in model.parameters():  # frozen: inference optimises simplex weights only
+            p.requires_grad_(False)
+        self.config = model.config
+        self.coords = pixel_coords(self.config.field_resolution)
+        with torch.no_grad():
+            self.bg_rgb, self.bg_logit = model.background_terms(self.coords[None])
+            self.times = torch.from_numpy(output_times(self.config)).float()
+
+    def _object_loss(self, slot: int, logits: torch.Tensor, coords, colour, bg_rgb, bg_logit, target) -> torch.Tensor:
+        """Per-candidate MSE (C,) of slot `slot`'s expert image for simplex logits (C, K)."""
+        c = logits.shape[0]
+        latent = self.model.object_latent(slot, torch.softmax(logits, dim=-1))
+        rgb, logit, _ = self.model.objects[slot](coords.expand(c, -1, -1), latent, colour.expand(c, -1))
+        image = self.model.expert_image(rgb, logit, bg_rgb, bg_logit)
+        return ((image - target) ** 2).mean(dim=(1, 2))
+
+    def infer_weights(self, slot: int, pixels: np.ndarray, rgb: torch.Tensor, colour: torch.Tensor,
+                      rng: np.random.Generator) -> tuple[torch.Tensor, float]:
+        """Simplex weights (K,) of slot `slot` fit to the image `rgb` (R*R, 3) at flat pixel
+        indices `pixels`; returns them with the final reconstruction MSE."""
+        c = self.config
+        if len(pixels) > c.inference_pixels:
+            pixels = np.sort(rng.choice(pixels, size=c.inference_pixels, replace=False))
+        idx = torch.from_numpy(pixels)
+        coords, target = self.coords[idx][None], rgb[idx][None]
+        bg_rgb, bg_logit = self.bg_rgb[:, idx], self.bg_logit[:, idx]
+        k = c.num_endpoints
+        candidates = torch.cat([
+            self.model.demo_logits[:, slot],
+            torch.log(torch.eye(k) * 0.97 + 0.03 / k),
+            torch.log(torch.from_numpy(rng.dirichlet(np.ones(k), size=c.search_candidates)).float() + 1e-4),
+        ])
+        with torch.no_grad():
+            losses = self._object_loss(slot, candidates, coords, colour[None], bg_rgb, bg_logit, target)
+        starts = candidates[torch.argsort(losses)[: c.search_starts]].detach().clone().requires_grad_(True)
+        optimiser = torch.optim.Adam([starts], lr=c.refine_learning_rate)
+        for _ in range(c.refine_steps):
+            loss = self._object_loss(slot, starts, coords, colour[None], bg_rgb, bg_logit, target)
+            optimiser.zero_grad(set_to_none=True)
+            loss.sum().backward()
+            optimiser.step()
+        with torch.no_grad():
+            final = self._object_loss(slot, starts, coords, colour[None], bg_rgb, bg_logit, target)
+            best = int(torch.argmin(final))
+            return torch.softmax(starts[best], dim=-1).detach(), float(final[best])
+
+    def predict(self, image: np.ndarray, labels: np.ndarray, seed: int = 0) -> dict:
+        """Trajectory for a scene.
+
+        Args:
+            image: (H, W, 3) uint8; labels: (H, W) uint8 label map in the model's slot order.
+
+        Returns ``{"trajectory": decode_trajectory dict, "weights": (N, K) simplex weights,
+        "present": (N,) bool, "object_mse": per slot reconstruction MSE (None when absent),
+        "object_psnr_db", "scene_psnr_db", "mask_iou": per slot IoU of the learned mask with the
+        coarse mask, "gates": (T, N), "seconds": {"infer", "decode"}}``.
+        """
+        c = self.config
+        inputs = core_data.scene_inputs(image, labels, c.num_objects, c.field_resolution, c.mask_dilation)
+        rgb = torch.from_numpy(inputs["rgb"].reshape(-1, 3))
+        colour = torch.from_numpy(inputs["colour"])
+        present = torch.from_numpy(inputs["present"])
+        rng = np.random.default_rng(seed)
+        started = time.perf_counter()
+        weights = torch.full((c.num_objects, c.num_endpoints), 1.0 / c.num_endpoints)
+        mse: list[float | None] = [None] * c.num_objects
+        for slot in range(c.num_objects):
+            if inputs["present"][slot]:
+                pixels = np.flatnonzero(inputs["dilated"][slot].reshape(-1))
+                weights[slot], mse[slot] = self.infer_weights(slot, pixels, rgb, colour[slot], rng)
+        inferred = time.perf_counter()
+        with torch.no_grad():
+            latents = self.model.latents(weights[None], present[None])
+            outputs = self.model.motion(self.times, latents)[0].numpy().astype(np.float64)
+            gates = self.model.gates(self.times).numpy()
+        trajectory = decode_trajectory(outputs, c)
+        decoded = time.perf_counter()
+        fit = self.scene_fit(latents, colour, present, rgb, inputs["masks"])
+        return {"trajectory": trajectory, "weights": weights.numpy(), "present": inputs["present"],
+                "object_mse": mse, "object_psnr_db": [None if m is None else psnr_db(m) for m in mse],
+                **fit, "gates": gates,
+                "seconds": {"infer": inferred - started, "decode": decoded - inferred}}
+
+    def scene_fit(self, latents, colour, present, rgb, coarse_masks) -> dict:
+        """Whole-image reconstruction PSNR and per-object IoU of the learned masks (argmax of
+        the competition) with the coarse masks, at field resolution."""
+        with torch.no_grad():
+            scene = self.model.scene(self.coords[None], latents, colour[None], present[None])
+        recon = scene["rgb"][0]
+        owner = scene["masks"][0].argmax(dim=0).numpy()
+        ious = []
+        for slot in range(self.config.num_objects):
+            if not present[slot]:
+                ious.append(None)
+                continue
+            learned, coarse = owner == slot, coarse_masks[slot].reshape(-1)
+            union = np.logical_or(learned, coarse).sum()
+            ious.append(float(np.logical_and(learned, coarse).sum() / union) if union else None)
+        res = self.config.field_resolution
+        return {"scene_psnr_db": psnr_db(float(((recon - rgb) ** 2).mean())), "mask_iou": ious,
+                "reconstruction": (recon.reshape(res, res, 3).numpy() * 255).round().astype(np.uint8),
+                "learned_masks": owner.reshape(res, res).astype(np.uint8)}

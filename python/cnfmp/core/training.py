@@ -1,0 +1,237 @@
+"""Training of a compositional NF-MP model from demonstrations: one seeded run.
+
+Each step takes a batch of demonstrations, draws pixels (most from each object's dilated
+coarse mask, the rest uniform: the masks only bias where the fields are supervised) and time
+samples, and fits the scene fields, the endpoint and demonstration latents and the motion
+networks jointly. Writes ``config.json``, ``model.safetensors`` and a ``README.md`` card.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+
+import numpy as np
+import torch
+
+from cnfmp.core import data as core_data
+from cnfmp.core.configuration_cnfmp import CnfmpConfig
+from cnfmp.core.modeling_cnfmp import (CARD_FILE, CnfmpModel, pixel_coords, save_model, trajectory_targets)
+from cnfmp.errors import InputError
+
+
+def fit_config_to_data(config: CnfmpConfig, demos: core_data.Demonstrations) -> CnfmpConfig:
+    """The "(from data)" fields of `config` filled in from the demonstrations."""
+    slots = max(len(objs) for objs in demos.objects)
+    highest = int(demos.masks.max())
+    if highest > slots:
+        raise InputError(f"masks use label {highest} but annotation.objects names only {slots} object(s)")
+    positions = np.concatenate([traj[:, :3] for traj in demos.trajectories])
+    longest = max(len(traj) for traj in demos.trajectories)
+    present = np.stack([[(masks == k).any() for k in range(1, slots + 1)] for masks in demos.masks])
+    return dataclasses.replace(
+        config, task=demos.task, num_objects=slots,
+        object_names=max(demos.objects, key=len),
+        slot_can_be_absent=[bool(not present[:, k].all()) for k in range(slots)],
+        duration_s=(longest - 1) / demos.fps,
+        reference_quat=[float(v) for v in demos.trajectories[0][0, 3:7]],
+        position_mean=[float(v) for v in positions.mean(axis=0)],
+        position_std=[float(max(v, 1e-3)) for v in positions.std(axis=0)],
+    )
+
+
+class TrainingSet:
+    """Demonstrations as tensors at field resolution, with per-object pixel pools for the
+    mask-biased sampling and padded trajectory targets."""
+
+    def __init__(self, demos: core_data.Demonstrations, config: CnfmpConfig):
+        n, res = config.num_objects, config.field_resolution
+        scenes = [core_data.scene_inputs(img, m, n, res, config.mask_dilation) for img, m in zip(demos.images, demos.masks)]
+        self.rgb = torch.from_numpy(np.stack([s["rgb"].reshape(-1, 3) for s in scenes]))  # (B, R*R, 3)
+        self.colour = torch.from_numpy(np.stack([s["colour"] for s in scenes]))  # (B, N, 3)
+        self.present = torch.from_numpy(np.stack([s["present"] for s in scenes]))  # (B, N)
+        self.masks = np.stack([s["masks"].reshape(n, -1) for s in scenes])  # (B, N, R*R) bool
+        everywhere = np.arange(res * res)
+        self.pools = [[np.flatnonzero(s["dilated"][k].reshape(-1)) if s["present"][k] else everywhere
+                       for k in range(n)] for s in scenes]
+        self.coords = pixel_coords(res)
+        frames = int(round(config.duration_s * demos.fps)) + 1
+        targets = []
+        for traj in demos.trajectories:
+            t = trajectory_targets(traj, config)
+            held = np.repeat(t[-1:], frames - len(t), axis=0)  # shorter demos hold their last pose
+            targets.append(np.concatenate([t, held]))
+        self.targets = torch.from_numpy(np.stack(targets).astype(np.float32))  # (B, F, 7)
+        self.frames = frames
+
+    def __len__(self) -> int:
+        return self.rgb.shape[0]
+
+    def sample_pixels(self, rng: np.random.Generator, batch: np.ndarray, per_object: int, uniform: int) -> torch.Tensor:
+        """Flat pixel indices (b, N * per_object + uniform): object k's block first, in slot
+        order, then the uniform block."""
+        total = self.coords.shape[0]
+        rows = []
+        for b in batch:
+            blocks = [rng.choice(pool, size=per_object) for pool in self.pools[b]]
+            blocks.append(rng.integers(0, total, size=uniform))
+            rows.append(np.concatenate(blocks))
+        return torch.from_numpy(np.stack(rows))
+
+
+def image_losses(model: CnfmpModel, scene: dict, target: torch.Tensor, present: torch.Tensor,
+                 per_object: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(composite MSE over every sampled pixel, mean per-object expert MSE over each present
+    object's own block of pixels)."""
+    composite = torch.mean((scene["rgb"] - target) ** 2)
+    n = model.config.num_objects
+    logits = scene["logits"]
+    local, count = torch.zeros(()), torch.zeros(())
+    for k in range(n):
+        block = slice(k * per_object, (k + 1) * per_object)
+        expert = model.expert_image(scene["object_rgb"][:, k, block], logits[:, k, block],
+                                    scene["background_rgb"][:, block], logits[:, n, block])
+        err = ((expert - target[:, block]) ** 2).mean(dim=(1, 2))
+        local = local + (err * present[:, k]).sum()
+        count = count + present[:, k].sum()
+    return composite, local / count.clamp(min=1)
+
+
+def motion_loss(model: CnfmpModel, outputs: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+    c = model.config
+    err = (outputs - targets) ** 2
+    return (c.position_weight * err[..., :3].mean() + c.rotation_weight * err[..., 3:6].mean()
+            + c.gripper_weight * err[..., 6].mean())
+
+
+def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) -> tuple[CnfmpModel, dict]:
+    """Trains a model on `demos`; returns it with a summary of the run (final losses, wall
+    time). `log(line)` receives progress lines (every ~5% of the steps)."""
+    config = fit_config_to_data(config, demos)
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    data = TrainingSet(demos, config)
+    model = CnfmpModel(config, num_demos=len(data))
+    latent_params = [model.endpoints, model.absent, model.demo_logits]
+    net_params = [p for name, p in model.named_parameters() if name not in ("endpoints", "absent", "demo_logits")]
+    optimiser = torch.optim.Adam([{"params": net_params, "lr": config.learning_rate},
+                                  {"params": latent_params, "lr": config.latent_learning_rate}])
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimiser, lambda step: 0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * min(step / config.steps, 1.0))))
+    batch_size = min(config.batch_demos, len(data))
+    report_every = max(1, config.steps // 20)
+    started, history = time.monotonic(), []
+    for step in range(config.steps):
+        progress = min(1.0, step / max(1.0, config.anneal_fraction * config.steps))
+        batch = rng.choice(len(data), size=batch_size, replace=False)
+        pixels = data.sample_pixels(rng, batch, config.pixels_per_object, config.uniform_pixels)
+        bt = torch.from_numpy(batch)
+        coords = data.coords[pixels]
+        target = torch.gather(data.rgb[bt], 1, pixels[..., None].expand(-1, -1, 3))
+        present = data.present[bt]
+        latents = model.latents(torch.softmax(model.demo_logits[bt], dim=-1), present)
+        scene = model.scene(coords, latents, data.colour[bt], present, progress)
+        composite, local = image_losses(model, scene, target, present, config.pixels_per_object)
+        frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
+        t = frames.float() / (data.frames - 1)
+        motion = motion_loss(model, model.motion(t, latents), data.targets[bt][:, frames])
+        lipschitz = model.lipschitz_penalty()
+        loss = config.image_weight * (composite + local) + motion + config.lipschitz_weight * lipschitz
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        optimiser.step()
+        schedule.step()
+        history.append([composite.item(), local.item(), motion.item()])
+        if log and (step % report_every == 0 or step == config.steps - 1):
+            recent = np.mean(history[-report_every:], axis=0)
+            elapsed = time.monotonic() - started
+            eta = elapsed / (step + 1) * (config.steps - step - 1)
+            log(f"step {step + 1}/{config.steps}  image {recent[0]:.5f}  object {recent[1]:.5f}  "
+                f"motion {recent[2]:.5f}  lipschitz {lipschitz.item():.3g}  {elapsed:.0f}s elapsed, ~{eta:.0f}s left")
+    model.eval()
+    final = np.mean(history[-max(1, config.steps // 20):], axis=0)
+    summary = {"steps": config.steps, "demos": len(data), "seconds": round(time.monotonic() - started, 1),
+               "final_losses": {"image_mse": float(final[0]), "object_mse": float(final[1]), "motion_mse": float(final[2])},
+               "parameters": model.parameter_count()}
+    return model, summary
+
+
+def load_config_file(path: str | None) -> CnfmpConfig:
+    if path is None:
+        return CnfmpConfig()
+    try:
+        with open(path, encoding="utf-8") as f:
+            values = json.load(f)
+    except OSError as err:
+        raise InputError(f"cannot read config {path}: {err.strerror}") from err
+    except ValueError as err:
+        raise InputError(f"config {path} is not valid JSON: {err}") from err
+    if not isinstance(values, dict):
+        raise InputError(f"config {path}: expected a JSON object of config fields")
+    return CnfmpConfig.from_dict(values, source=path)
+
+
+def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps: int | None = None,
+          seed: int | None = None, command: str = "", progress: bool = True) -> str:
+    """Trains on the LeRobot dataset at `dataset_dir` and writes the model directory `out_dir`
+    (must not exist; written to a temporary sibling and renamed when complete).
+
+    Returns JSON ``{"out", "task", "demos", "steps", "seconds", "final_losses", "parameters"}``.
+    """
+    if os.path.exists(out_dir):
+        raise InputError(f"{out_dir} already exists; models are never overwritten, choose a new --out")
+    config = load_config_file(config_path)
+    overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
+    config = dataclasses.replace(config, **overrides)
+    config.check()
+    demos = core_data.load_demonstrations(dataset_dir)
+    log = (lambda line: print(line, file=sys.stderr, flush=True)) if progress else None
+    if log:
+        log(f"training on {len(demos)} {demos.task} demonstrations from {dataset_dir}, {config.steps} steps, seed {config.seed}")
+    model, summary = train_model(demos, config, log)
+    parent = os.path.dirname(os.path.abspath(out_dir))
+    os.makedirs(parent, exist_ok=True)
+    staging = tempfile.mkdtemp(prefix=".cnfmp-model-", dir=parent)
+    try:
+        save_model(model, staging)
+        with open(os.path.join(staging, CARD_FILE), "w", encoding="utf-8") as f:
+            f.write(model_card(model.config, summary, dataset_dir, demos, command))
+        os.rename(staging, out_dir)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return json.dumps({"out": out_dir, "task": demos.task, **summary})
+
+
+def model_card(config: CnfmpConfig, summary: dict, dataset_dir: str, demos: core_data.Demonstrations, command: str) -> str:
+    seeds = [s for s in demos.seeds if s >= 0]
+    seed_text = f"{min(seeds)}..{max(seeds)}" if seeds else "not recorded"
+    losses = summary["final_losses"]
+    return f"""# cnfmp model: {config.task}
+
+Compositional neural-field movement primitive (paper §II-B) trained by `cnfmp train`.
+
+| | |
+|---|---|
+| task | `{config.task}` |
+| objects (slots, label order) | {", ".join(config.object_names)} |
+| dataset | `{os.path.basename(os.path.abspath(dataset_dir))}`: {len(demos)} demonstrations, scene seeds {seed_text} |
+| steps | {summary['steps']} (seed {config.seed}) |
+| wall time | {summary['seconds']:.0f} s, {torch.get_num_threads()} torch thread(s) |
+| parameters | {summary['parameters']:,} (plus {len(demos) * config.num_objects * config.num_endpoints} demonstration simplex weights) |
+| final losses | image MSE {losses['image_mse']:.5f}, object MSE {losses['object_mse']:.5f}, motion MSE {losses['motion_mse']:.5f} (normalised units) |
+| trajectory | {config.duration_s:.1f} s at {config.output_fps:g} Hz |
+
+Command:
+
+```
+{command or "cnfmp train --dataset " + dataset_dir + " --out <dir>"}
+```
+
+Held-out metrics: see `docs/benchmarks.md` (`cnfmp eval --model <dir> --task {config.task} ...`).
+"""

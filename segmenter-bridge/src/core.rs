@@ -1,0 +1,113 @@
+//! Typed calls into the compositional NF-MP core (`cnfmp.core.api`): training a model from a
+//! LeRobot dataset and predicting a trajectory for a scene image and its coarse masks.
+
+use std::path::{Path, PathBuf};
+
+use pyo3::prelude::*;
+use pyo3::types::PyBytes;
+use serde::{Deserialize, Serialize};
+
+use crate::error::BridgeError;
+use crate::worker::Bridge;
+
+/// What `cnfmp train` asks for.
+#[derive(Debug, Clone)]
+pub struct TrainRequest {
+    /// LeRobot v3.0 dataset directory.
+    pub dataset: PathBuf,
+    /// Model directory to create (must not exist).
+    pub out: PathBuf,
+    /// Optional JSON config (fields of `CnfmpConfig`).
+    pub config: Option<PathBuf>,
+    /// Overrides of the config's steps and seed.
+    pub steps: Option<u64>,
+    pub seed: Option<u64>,
+    /// The command line, recorded in the model card.
+    pub command: String,
+}
+
+/// Final training losses (normalised units).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct TrainLosses {
+    pub image_mse: f64,
+    pub object_mse: f64,
+    pub motion_mse: f64,
+}
+
+/// Summary of a finished training run.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct TrainReport {
+    pub out: String,
+    pub task: String,
+    pub demos: u64,
+    pub steps: u64,
+    /// Wall time of the optimisation (s).
+    pub seconds: f64,
+    pub final_losses: TrainLosses,
+    /// Network and latent parameters (without the per-demonstration simplex weights).
+    pub parameters: u64,
+}
+
+/// Per object slot: what inference found.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct ObjectEstimate {
+    /// 1-based slot = label in the masks.
+    pub slot: u32,
+    pub name: String,
+    pub present: bool,
+    /// Simplex weights over the slot's endpoint latents (None when absent).
+    pub weights: Option<Vec<f64>>,
+    /// Reconstruction error of the object's masked region (MSE on [0, 1] RGB) and as PSNR
+    /// (dB): the confidence signal; lower MSE = more confident.
+    pub reconstruction_mse: Option<f64>,
+    pub psnr_db: Option<f64>,
+    /// IoU of the learned mask with the given coarse mask.
+    pub mask_iou: Option<f64>,
+}
+
+/// Which model produced a prediction.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct ModelInfo {
+    pub dir: String,
+    /// The task the model was trained on.
+    pub task: String,
+    #[serde(rename = "type")]
+    pub model_type: String,
+}
+
+/// A prediction: the trajectory JSON of design.md (`fps`, `frames`) plus diagnostics.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Prediction {
+    /// The complete JSON document (trajectory and diagnostics), as Python wrote it.
+    #[serde(skip)]
+    pub json: String,
+    pub model: ModelInfo,
+    pub objects: Vec<ObjectEstimate>,
+    /// Whole-image reconstruction PSNR (dB) at field resolution.
+    pub scene_psnr_db: f64,
+    /// Stage timings (ms): decode_inputs, infer_latents, decode_trajectory, total.
+    pub timings_ms: serde_json::Map<String, serde_json::Value>,
+}
+
+impl Bridge {
+    /// Trains a model (`cnfmp.core.api.train`); progress lines go to stderr.
+    pub fn core_train(&self, request: &TrainRequest) -> Result<TrainReport, BridgeError> {
+        let r = request.clone();
+        self.call_json("cnfmp.core.api", "train", (r.dataset, r.out, r.config, r.steps, r.seed, r.command))
+    }
+
+    /// Predicts the trajectory for an encoded scene image and label-map masks of the same
+    /// size, with `objects` naming the labels in order. The model stays loaded for later calls.
+    pub fn core_predict(&self, model_dir: &Path, image: Vec<u8>, masks: Vec<u8>, objects: Vec<String>) -> Result<Prediction, BridgeError> {
+        let model_dir = model_dir.to_path_buf();
+        let json: String = self.call(move |py| {
+            let args = (model_dir, PyBytes::new(py, &image), PyBytes::new(py, &masks), objects);
+            let run = || -> PyResult<String> { py.import("cnfmp.core.api")?.call_method1("predict", args)?.extract() };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })?;
+        let mut prediction: Prediction =
+            serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("cnfmp.core.api.predict: {err}")))?;
+        prediction.json = json;
+        Ok(prediction)
+    }
+}
