@@ -10,7 +10,7 @@ CNFMP     := target/release/cnfmp
 export OMP_NUM_THREADS ?= 1
 export CARGO_TERM_COLOR ?= never
 
-.PHONY: help setup setup-system setup-venv build demo test test-rust test-python bench lock clean
+.PHONY: help setup setup-system setup-venv build demo test test-rust test-python bench models lock clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-13s %s\n", $$1, $$2}'
@@ -39,7 +39,11 @@ test-python:
 
 bench: setup  ## benchmarks that print figures (see docs/benchmarks.md)
 	bash scripts/bench-sim.sh
+	bash scripts/bench-core.sh
 	bash scripts/bench-setup.sh
+
+models: setup  ## retrain the shipped core models under models/ (scripts/train-models.sh)
+	bash scripts/train-models.sh
 
 lock:  ## re-resolve requirements.lock from pyproject.toml (then run make setup)
 	bash scripts/lock.sh

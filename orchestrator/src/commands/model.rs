@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::Args;
-use segmenter_bridge::{Bridge, ObjectEstimate, Prediction, TrainRequest};
+use segmenter_bridge::{Bridge, BridgeError, ObjectEstimate, Prediction, TrainRequest};
 use serde::Serialize;
 use serde_json::{Map, Value};
 
@@ -241,15 +241,21 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
             )));
         }
         let predicted = resample(&trajectory_of(&prediction)?, ResampleTarget::Fps(control_hz))?;
-        let verdict = bridge.sim_execute(&args.task, seed, predicted.to_arrays())?;
+        // A trajectory the simulator refuses (a frame outside the workspace) is a failed
+        // episode, not a failed evaluation.
+        let (success, reasons) = match bridge.sim_execute(&args.task, seed, predicted.to_arrays()) {
+            Ok(verdict) => (verdict.success, verdict.reasons),
+            Err(BridgeError::InvalidInput(message)) => (false, vec![format!("not executed: {message}")]),
+            Err(other) => return Err(other.into()),
+        };
         let (expert, _) = bridge.sim_expert(&args.task, seed)?;
         let expert = Trajectory::from_arrays(&expert, Map::new())
             .map_err(|err| Failure::Environment(format!("the {} expert produced an invalid trajectory: {err}", args.task)))?;
         let med_cm = mean_euclidean_distance_cm(&predicted, &expert).map_err(Failure::Environment)?;
         episodes.push(Episode {
             seed,
-            success: verdict.success,
-            reasons: verdict.reasons,
+            success,
+            reasons,
             med_cm,
             latency_ms,
             scene_psnr_db: prediction.scene_psnr_db,

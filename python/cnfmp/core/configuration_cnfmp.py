@@ -46,7 +46,7 @@ class CnfmpConfig:
     #: Dimension of each object's latent z_i.
     latent_dim: int = 16
     #: Endpoint latents per object (latent relabeling): z_i is a convex combination of these.
-    num_endpoints: int = 6
+    num_endpoints: int = 4
     #: Width of the hidden layers of every coordinate MLP (deformation, appearance, background).
     field_width: int = 64
     #: Hidden layers of each coordinate MLP.
@@ -70,6 +70,16 @@ class CnfmpConfig:
     #: Dilation (px at field resolution) of the coarse masks before sampling and inference.
     mask_dilation: int = 3
 
+    #: Weight of a weak mask prior: cross-entropy between the soft competition and the
+    #: coarse labels at the sampled pixels. The sampling bias alone lets an expert paint
+    #: other objects in the composite; this small term keeps each expert on its own object.
+    mask_prior_weight: float = 0.0
+
+    #: Weight of an entropy bonus on the demonstrations' simplex weights: it keeps the
+    #: demonstrations inside their simplices, so the endpoints span beyond the observed
+    #: variations and new scenes just outside them stay reachable.
+    simplex_entropy_weight: float = 0.0
+
     # ---- motion ----
     #: Positional-encoding octaves of normalised time t in [0, 1].
     time_octaves: int = 7
@@ -82,6 +92,10 @@ class CnfmpConfig:
     #: Whether the temporal gating is learned; False gives the ablation with constant, equal
     #: weights (z(t) = mean of the object latents).
     temporal_gating: bool = True
+    #: Whether the trajectory loss also moves the latents (joint shaping, as in the paper);
+    #: False trains the motion on the latents the scene alone explains, so nothing the image
+    #: cannot show steers the motion.
+    motion_shapes_latents: bool = True
     #: Time samples per demonstration per training step.
     time_samples: int = 64
     #: Loss weights: trajectory position, rotation (rad), gripper.
@@ -93,7 +107,7 @@ class CnfmpConfig:
 
     # ---- training ----
     #: Optimisation steps (one seeded run).
-    steps: int = 3000
+    steps: int = 2000
     #: Demonstrations per step (all of them when the dataset is smaller).
     batch_demos: int = 16
     #: Adam learning rate of the networks and of the endpoint and demonstration latents.
@@ -106,13 +120,15 @@ class CnfmpConfig:
     #: Candidates of the cheap search: random simplex points (plus every training
     #: demonstration's weights and the simplex vertices).
     search_candidates: int = 96
+    #: Pixels of an object's dilated mask the cheap search scores candidates on.
+    search_pixels: int = 128
     #: Best candidates refined by gradient steps (multi-start).
     search_starts: int = 4
     #: Adam steps on the simplex logits per start, and their learning rate.
-    refine_steps: int = 30
-    refine_learning_rate: float = 0.15
+    refine_steps: int = 20
+    refine_learning_rate: float = 0.2
     #: Most pixels of an object's dilated mask used by inference.
-    inference_pixels: int = 384
+    inference_pixels: int = 256
     #: Rate (Hz) of the decoded trajectory.
     output_fps: float = 50.0
 
@@ -140,7 +156,7 @@ class CnfmpConfig:
         positive = ["field_resolution", "latent_dim", "num_endpoints", "field_width", "field_layers",
                     "pixels_per_object", "uniform_pixels", "generator_width", "generator_layers",
                     "gating_width", "time_samples", "steps", "batch_demos", "search_candidates",
-                    "search_starts", "inference_pixels"]
+                    "search_starts", "search_pixels", "inference_pixels"]
         for name in positive:
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise InputError(f"{source}: {name} must be a whole number >= 1, got {getattr(self, name)!r}")

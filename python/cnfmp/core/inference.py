@@ -50,8 +50,7 @@ class Predictor:
         """Simplex weights (K,) of slot `slot` fit to the image `rgb` (R*R, 3) at flat pixel
         indices `pixels`; returns them with the final reconstruction MSE."""
         c = self.config
-        if len(pixels) > c.inference_pixels:
-            pixels = np.sort(rng.choice(pixels, size=c.inference_pixels, replace=False))
+        pixels = rng.permutation(pixels)[: c.inference_pixels]
         idx = torch.from_numpy(pixels)
         coords, target = self.coords[idx][None], rgb[idx][None]
         bg_rgb, bg_logit = self.bg_rgb[:, idx], self.bg_logit[:, idx]
@@ -61,8 +60,10 @@ class Predictor:
             torch.log(torch.eye(k) * 0.97 + 0.03 / k),
             torch.log(torch.from_numpy(rng.dirichlet(np.ones(k), size=c.search_candidates)).float() + 1e-4),
         ])
+        few = slice(0, min(c.search_pixels, len(pixels)))  # pixels are a random subset already
         with torch.no_grad():
-            losses = self._object_loss(slot, candidates, coords, colour[None], bg_rgb, bg_logit, target)
+            losses = self._object_loss(slot, candidates, coords[:, few], colour[None], bg_rgb[:, few], bg_logit[:, few],
+                                       target[:, few])
         starts = candidates[torch.argsort(losses)[: c.search_starts]].detach().clone().requires_grad_(True)
         optimiser = torch.optim.Adam([starts], lr=c.refine_learning_rate)
         for _ in range(c.refine_steps):

@@ -119,8 +119,38 @@ def plain_mlp(in_dim: int, width: int, layers: int, out_dim: int) -> nn.Sequenti
     return nn.Sequential(*parts, nn.Linear(width, out_dim))
 
 
+class AffineFilmGenerator(nn.Module):
+    """Trajectory generator G(t | z): time features h(t) from a coordinate MLP, modulated by
+    FiLM maps that are linear in the latent, ``G = W_o ((1 + Gamma z) * h(t) + B z) + b``.
+
+    For every t the output is affine in z, hence in each object's simplex weights: the
+    motion then interpolates between demonstrations the way the latents do, which is what
+    lets a handful of demonstrations generalise. forward(t_features (T, F), z (B, T, D)) ->
+    (B, T, out_dim).
+    """
+
+    def __init__(self, in_dim: int, latent_dim: int, width: int, layers: int, out_dim: int):
+        super().__init__()
+        self.features = nn.Sequential(plain_mlp(in_dim, width, layers - 1, width), nn.ReLU())
+        self.gamma = LipschitzLinear(latent_dim, width)
+        self.beta = LipschitzLinear(latent_dim, width)
+        self.out = nn.Linear(width, out_dim)
+        with torch.no_grad():
+            self.gamma.linear.weight.mul_(0.1)
+            self.gamma.linear.bias.zero_()
+
+    def lipschitz_bound(self) -> torch.Tensor:
+        return self.gamma.bound() + self.beta.bound()
+
+    def forward(self, t_features: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        h = self.features(t_features)[None]  # (1, T, W)
+        return self.out((1.0 + self.gamma(z)) * h + self.beta(z))
+
+
 class ObjectField(nn.Module):
     """One spatial expert: deformation Delta(x | z) and appearance F(x - Delta | z, colour).
+    The deformation is a translation linear in z (objects mostly move) plus a low-frequency
+    FiLM residual for everything else (turns, heights, slopes).
 
     forward(coords (B, P, 2), latent (B, D), colour (B, 3), progress) ->
     (rgb (B, P, 3) in [0, 1], mask logit (B, P), deformation (B, P, 2)).
@@ -129,6 +159,7 @@ class ObjectField(nn.Module):
     def __init__(self, config: CnfmpConfig):
         super().__init__()
         self.config = config
+        self.translation = LipschitzLinear(config.latent_dim, 2)
         self.deformation = FilmMLP(encoded_size(2, config.deformation_octaves), config.latent_dim, config.field_width,
                                    config.field_layers, 2, lipschitz=True)
         self.appearance = FilmMLP(encoded_size(2, config.appearance_octaves), config.latent_dim + 3,
@@ -136,9 +167,11 @@ class ObjectField(nn.Module):
         with torch.no_grad():  # identity deformation at the start
             self.deformation.out.weight.zero_()
             self.deformation.out.bias.zero_()
+            self.translation.linear.bias.zero_()
 
     def forward(self, coords, latent, colour, progress=None):
-        offset = self.deformation(fourier_features(coords, self.config.deformation_octaves), latent)
+        offset = (self.translation(latent)[:, None, :]
+                  + self.deformation(fourier_features(coords, self.config.deformation_octaves), latent))
         canonical = coords - offset
         out = self.appearance(fourier_features(canonical, self.config.appearance_octaves, progress),
                               torch.cat([latent, colour], dim=-1))
@@ -164,7 +197,7 @@ class CnfmpModel(nn.Module):
         self.demo_logits = nn.Parameter(0.3 * torch.randn(num_demos, n, k))
         time_in = encoded_size(1, config.time_octaves)
         self.gating = plain_mlp(time_in, config.gating_width, 2, n)
-        self.generator = FilmMLP(time_in, d, config.generator_width, config.generator_layers, MOTION_DIM)
+        self.generator = AffineFilmGenerator(time_in, d, config.generator_width, config.generator_layers, MOTION_DIM)
 
     # ---- latents ----
     def latents(self, weights: torch.Tensor, present: torch.Tensor) -> torch.Tensor:
@@ -221,15 +254,14 @@ class CnfmpModel(nn.Module):
     def motion(self, t: torch.Tensor, latents: torch.Tensor) -> torch.Tensor:
         """Normalised times (T,) and object latents (B, N, D) -> generator outputs (B, T, 7):
         normalised position, rotation vector (rad), gripper."""
-        w = self.gates(t)
-        z_t = torch.einsum("tn,bnd->btd", w, latents)  # (B, T, D)
-        b, steps, d = z_t.shape
-        enc = fourier_features(t[:, None], self.config.time_octaves)
-        out = self.generator(enc[None].expand(b, -1, -1).reshape(b * steps, 1, -1), z_t.reshape(b * steps, d))
-        return out.view(b, steps, MOTION_DIM)
+        if self.training and not self.config.motion_shapes_latents:
+            latents = latents.detach()
+        z_t = torch.einsum("tn,bnd->btd", self.gates(t), latents)  # (B, T, D)
+        return self.generator(fourier_features(t[:, None], self.config.time_octaves), z_t)
 
     def lipschitz_penalty(self) -> torch.Tensor:
-        return torch.stack([field.deformation.lipschitz_bound() for field in self.objects]).sum()
+        bounds = [field.deformation.lipschitz_bound() * field.translation.bound() for field in self.objects]
+        return torch.stack(bounds).sum() + self.generator.lipschitz_bound()
 
     def parameter_count(self, include_demos: bool = False) -> int:
         return sum(p.numel() for name, p in self.named_parameters() if include_demos or name != "demo_logits")

@@ -55,7 +55,12 @@ class TrainingSet:
         self.rgb = torch.from_numpy(np.stack([s["rgb"].reshape(-1, 3) for s in scenes]))  # (B, R*R, 3)
         self.colour = torch.from_numpy(np.stack([s["colour"] for s in scenes]))  # (B, N, 3)
         self.present = torch.from_numpy(np.stack([s["present"] for s in scenes]))  # (B, N)
-        self.masks = np.stack([s["masks"].reshape(n, -1) for s in scenes])  # (B, N, R*R) bool
+        # Coarse label per field pixel (0 background, k object k), for the weak mask prior.
+        labels = np.zeros((len(scenes), res * res), np.int64)
+        for b, s in enumerate(scenes):
+            for k in range(n):
+                labels[b][s["masks"][k].reshape(-1)] = k + 1
+        self.labels = torch.from_numpy(labels)
         everywhere = np.arange(res * res)
         self.pools = [[np.flatnonzero(s["dilated"][k].reshape(-1)) if s["present"][k] else everywhere
                        for k in range(n)] for s in scenes]
@@ -134,14 +139,21 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
         coords = data.coords[pixels]
         target = torch.gather(data.rgb[bt], 1, pixels[..., None].expand(-1, -1, 3))
         present = data.present[bt]
-        latents = model.latents(torch.softmax(model.demo_logits[bt], dim=-1), present)
+        weights = torch.softmax(model.demo_logits[bt], dim=-1)
+        latents = model.latents(weights, present)
+        entropy = -(weights * torch.log(weights + 1e-9)).sum(dim=-1).mean()
         scene = model.scene(coords, latents, data.colour[bt], present, progress)
         composite, local = image_losses(model, scene, target, present, config.pixels_per_object)
+        # Logits are ordered objects then background; labels 0 = background, k = object k.
+        label = torch.gather(data.labels[bt], 1, pixels)
+        label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
+        mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
         frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
         t = frames.float() / (data.frames - 1)
         motion = motion_loss(model, model.motion(t, latents), data.targets[bt][:, frames])
         lipschitz = model.lipschitz_penalty()
-        loss = config.image_weight * (composite + local) + motion + config.lipschitz_weight * lipschitz
+        loss = (config.image_weight * (composite + local) + motion + config.mask_prior_weight * mask_prior
+                + config.lipschitz_weight * lipschitz - config.simplex_entropy_weight * entropy)
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
         optimiser.step()

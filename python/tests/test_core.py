@@ -1,0 +1,193 @@
+"""The compositional NF-MP core on a tiny configuration and a small generated dataset: it
+trains, saves and loads exactly, gates properly, and recovers a training scene's motion."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from cnfmp import geometry
+from cnfmp.core import api, data as core_data, training
+from cnfmp.core.configuration_cnfmp import CnfmpConfig
+from cnfmp.core.inference import Predictor
+from cnfmp.core.modeling_cnfmp import CONFIG_FILE, WEIGHTS_FILE, CnfmpModel, load_model, save_model
+from cnfmp.data import generate
+from cnfmp.errors import InputError
+
+TINY = dict(field_resolution=32, latent_dim=8, num_endpoints=3, field_width=32, field_layers=2,
+            appearance_octaves=4, pixels_per_object=64, uniform_pixels=64, mask_dilation=2,
+            time_octaves=5, generator_width=48, generator_layers=2, time_samples=32,
+            search_candidates=16, search_starts=2, refine_steps=10, inference_pixels=128, output_fps=10.0)
+
+
+@pytest.fixture(scope="module")
+def dataset_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("core") / "wall"
+    generate.generate_dataset("wall_avoidance", 3, 200, str(out), workers=2, progress=False)
+    return str(out)
+
+
+@pytest.fixture(scope="module")
+def demos(dataset_dir):
+    return core_data.load_demonstrations(dataset_dir)
+
+
+@pytest.fixture(scope="module")
+def trained(demos):
+    config = CnfmpConfig(**TINY, steps=400, seed=3)
+    return training.train_model(demos, config)
+
+
+def test_demonstrations_read_back_with_first_frame_and_trajectory(demos):
+    assert len(demos) == 3 and demos.task == "wall_avoidance" and demos.seeds == [200, 201, 202]
+    assert demos.images.shape == (3, 128, 128, 3) and demos.masks.shape == (3, 128, 128)
+    assert demos.objects[0] == ["wall", "goal marker"]
+    assert set(np.unique(demos.masks[0])) == {0, 1, 2}
+    first = demos.trajectories[0]
+    assert first.shape[1] == 8 and len(first) > 20
+    np.testing.assert_allclose(first[0, :3], [0.0, -0.20, 0.06], atol=0.01)  # the fixed ready pose
+
+
+def test_a_few_steps_lower_the_losses(demos):
+    config = CnfmpConfig(**TINY, steps=60, seed=0)
+    losses = []
+    training.train_model(demos, config, log=lambda line: losses.append(line))
+    first, last = losses[0], losses[-1]
+
+    def value(line, key):
+        return float(line.split(f"{key} ")[1].split()[0])
+
+    for key in ("image", "object", "motion"):
+        assert value(last, key) < 0.7 * value(first, key), (key, first, last)
+
+
+def test_gating_weights_sum_to_one_and_vary_in_time(trained):
+    model, _ = trained
+    w = model.gates(torch.linspace(0, 1, 50))
+    assert w.shape == (50, 2)
+    torch.testing.assert_close(w.sum(dim=1), torch.ones(50))
+    assert bool((w >= 0).all())
+    ablation = CnfmpModel(dataclasses.replace(model.config, temporal_gating=False), num_demos=1)
+    torch.testing.assert_close(ablation.gates(torch.linspace(0, 1, 5)), torch.full((5, 2), 0.5))
+
+
+def test_rotations_round_trip_through_the_tangent_space():
+    rng = np.random.default_rng(0)
+    reference = geometry.quat_down(0.3)
+    quats = geometry.from_rotation(geometry.Rotation.random(100, random_state=1))
+    back = geometry.from_tangent(geometry.to_tangent(quats, reference), reference)
+    # q and -q are the same rotation.
+    assert np.allclose(np.abs(np.sum(back * quats, axis=1)), 1.0, atol=1e-9)
+    small = rng.normal(scale=0.5, size=(20, 3))
+    np.testing.assert_allclose(geometry.to_tangent(geometry.from_tangent(small, reference), reference), small, atol=1e-9)
+
+
+def test_save_and_load_give_identical_outputs(trained, tmp_path, demos):
+    model, _ = trained
+    save_model(model, str(tmp_path))
+    loaded = load_model(str(tmp_path))
+    coords = torch.rand(2, 40, 2) * 2 - 1
+    weights = torch.softmax(torch.randn(2, 2, 3), dim=-1)
+    present = torch.ones(2, 2, dtype=torch.bool)
+    colours = torch.rand(2, 2, 3)
+    with torch.no_grad():
+        for m in (model, loaded):
+            m.eval()
+        a, b = (m.scene(coords, m.latents(weights, present), colours, present)["rgb"] for m in (model, loaded))
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+        t = torch.linspace(0, 1, 30)
+        torch.testing.assert_close(model.motion(t, model.latents(weights, present)),
+                                   loaded.motion(t, loaded.latents(weights, present)), rtol=0, atol=0)
+    one = Predictor(model).predict(demos.images[0], demos.masks[0])["trajectory"]["position"]
+    two = Predictor(loaded).predict(demos.images[0], demos.masks[0])["trajectory"]["position"]
+    np.testing.assert_array_equal(one, two)
+
+
+def med_cm(a: np.ndarray, b: np.ndarray) -> float:
+    steps = max(len(a), len(b))
+    pad = lambda x: np.concatenate([x, np.repeat(x[-1:], steps - len(x), axis=0)])  # noqa: E731
+    return float(np.linalg.norm(pad(a) - pad(b), axis=1).mean() * 100)
+
+
+def test_inference_on_a_training_scene_recovers_its_own_trajectory(trained, demos):
+    model, _ = trained
+    predictor = Predictor(model)
+    for index in range(len(demos)):
+        out = predictor.predict(demos.images[index], demos.masks[index])
+        # The decoded trajectory runs at 10 Hz, like the dataset: compare frame by frame.
+        predicted = out["trajectory"]["position"]
+        own = med_cm(predicted, demos.trajectories[index][:, :3])
+        others = [med_cm(predicted, demos.trajectories[j][:, :3]) for j in range(len(demos)) if j != index]
+        assert own < 2.5 and own < 0.5 * min(others), (index, own, others)
+        assert all(m is not None and m < 0.01 for m in out["object_mse"])
+
+
+def png(array: np.ndarray) -> bytes:
+    buffer = io.BytesIO()
+    Image.fromarray(array).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def test_predict_api_returns_the_trajectory_schema_and_confidences(trained, tmp_path, demos):
+    model, _ = trained
+    save_model(model, str(tmp_path))
+    result = json.loads(api.predict(str(tmp_path), png(demos.images[1]), png(demos.masks[1]), ["wall", "goal marker"]))
+    assert result["fps"] == 10.0 and len(result["frames"]) == len(demos.trajectories[1])
+    frame = result["frames"][0]
+    assert set(frame) == {"t", "position", "orientation", "gripper"}
+    assert abs(np.linalg.norm(frame["orientation"]) - 1) < 1e-4
+    assert [o["name"] for o in result["objects"]] == ["wall", "goal marker"]
+    assert all(o["present"] and len(o["weights"]) == 3 and abs(sum(o["weights"]) - 1) < 1e-3 for o in result["objects"])
+    assert result["model"]["task"] == "wall_avoidance"
+
+
+def test_bad_inputs_are_clear_errors(trained, tmp_path, demos):
+    model, _ = trained
+    image, masks = png(demos.images[0]), png(demos.masks[0])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputError, match="config.json is missing"):
+        api.predict(str(empty), image, masks, ["wall", "goal marker"])
+    only_config = tmp_path / "only_config"
+    only_config.mkdir()
+    (only_config / CONFIG_FILE).write_text(model.config.to_json())
+    with pytest.raises(InputError, match=f"{WEIGHTS_FILE} is missing"):
+        api.predict(str(only_config), image, masks, ["wall", "goal marker"])
+    good = tmp_path / "good"
+    good.mkdir()
+    save_model(model, str(good))
+    small_masks = png(np.zeros((64, 64), np.uint8))
+    with pytest.raises(InputError, match="masks are 64x64 but the image is 128x128"):
+        api.predict(str(good), image, small_masks, ["wall", "goal marker"])
+    with pytest.raises(InputError, match="names 1 object.*label 2"):
+        api.predict(str(good), image, masks, ["wall"])
+    with pytest.raises(InputError, match="not a readable image"):
+        api.predict(str(good), b"not a png at all", masks, ["wall", "goal marker"])
+    with pytest.raises(InputError, match="single-channel label map"):
+        api.predict(str(good), image, image, ["wall", "goal marker"])
+    (good / CONFIG_FILE).write_text(json.dumps({**json.loads(model.config.to_json()), "field_widht": 3}))
+    with pytest.raises(InputError, match="unknown field.*field_widht"):
+        api.predict(str(good), image, masks, ["wall", "goal marker"])
+
+
+def test_train_writes_a_complete_model_directory_and_never_overwrites(dataset_dir, tmp_path):
+    config = tmp_path / "tiny.json"
+    config.write_text(json.dumps(TINY))
+    out = tmp_path / "model"
+    report = json.loads(training.train(dataset_dir, str(out), str(config), steps=5, seed=1, progress=False,
+                                       command="cnfmp train ..."))
+    assert report["steps"] == 5 and report["demos"] == 3 and report["task"] == "wall_avoidance"
+    assert sorted(os.listdir(out)) == sorted([CONFIG_FILE, WEIGHTS_FILE, "README.md"])
+    assert "cnfmp train ..." in (out / "README.md").read_text()
+    assert json.loads((out / CONFIG_FILE).read_text())["seed"] == 1
+    with pytest.raises(InputError, match="already exists"):
+        training.train(dataset_dir, str(out), None, steps=5, seed=1, progress=False)
+    leftovers = [name for name in os.listdir(tmp_path) if name.startswith(".cnfmp-model-")]
+    assert leftovers == []
