@@ -8,7 +8,10 @@ use std::process::{Command, Output};
 use serde_json::Value;
 
 fn cnfmp(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cnfmp")).args(args).output().expect("the cnfmp binary runs")
+    Command::new(env!("CARGO_BIN_EXE_cnfmp"))
+        .args(args)
+        .output()
+        .expect("the cnfmp binary runs")
 }
 
 fn stderr(output: &Output) -> String {
@@ -21,7 +24,11 @@ fn arg(path: &Path) -> &str {
 
 fn assert_bad_input(output: &Output, needle: &str) {
     assert_eq!(output.status.code(), Some(2), "{}", stderr(output));
-    assert!(stderr(output).contains(needle), "expected {needle:?} in: {}", stderr(output));
+    assert!(
+        stderr(output).contains(needle),
+        "expected {needle:?} in: {}",
+        stderr(output)
+    );
 }
 
 /// A configuration small enough to train in seconds on one thread.
@@ -34,30 +41,93 @@ const TINY_CONFIG: &str = r#"{"field_resolution": 32, "latent_dim": 8, "num_endp
 fn train_predict_eval_and_bad_inputs() {
     let dir = tempfile::tempdir().unwrap();
     let dataset = dir.path().join("wall");
-    let output = cnfmp(&["dataset", "generate", "--task", "wall_avoidance", "--episodes", "2", "--seed", "300", "--out", arg(&dataset)]);
+    let output = cnfmp(&[
+        "dataset",
+        "generate",
+        "--task",
+        "wall_avoidance",
+        "--episodes",
+        "2",
+        "--seed",
+        "300",
+        "--out",
+        arg(&dataset),
+    ]);
     assert!(output.status.success(), "{}", stderr(&output));
 
     let config = dir.path().join("tiny.json");
     std::fs::write(&config, TINY_CONFIG).unwrap();
     let model = dir.path().join("model");
-    let output = cnfmp(&["train", "--dataset", arg(&dataset), "--out", arg(&model), "--config", arg(&config), "--steps", "20", "--seed", "4"]);
+    let output = cnfmp(&[
+        "train",
+        "--dataset",
+        arg(&dataset),
+        "--out",
+        arg(&model),
+        "--config",
+        arg(&config),
+        "--steps",
+        "20",
+        "--seed",
+        "4",
+    ]);
     assert!(output.status.success(), "{}", stderr(&output));
     let report: Value = serde_json::from_slice(&output.stdout).unwrap();
     assert_eq!(report["steps"], 20);
     assert_eq!(report["demos"], 2);
-    assert!(stderr(&output).contains("step 20/20"), "progress is shown: {}", stderr(&output));
+    assert!(
+        stderr(&output).contains("step 20/20"),
+        "progress is shown: {}",
+        stderr(&output)
+    );
     let card = std::fs::read_to_string(model.join("README.md")).unwrap();
-    assert!(card.contains("--steps 20 --seed 4"), "the card records the command: {card}");
-    let again = cnfmp(&["train", "--dataset", arg(&dataset), "--out", arg(&model), "--steps", "1"]);
+    assert!(
+        card.contains("--steps 20 --seed 4"),
+        "the card records the command: {card}"
+    );
+    let again = cnfmp(&[
+        "train",
+        "--dataset",
+        arg(&dataset),
+        "--out",
+        arg(&model),
+        "--steps",
+        "1",
+    ]);
     assert_bad_input(&again, "already exists");
 
     let scene = dir.path().join("scene");
-    let output = cnfmp(&["sim", "render", "--task", "wall_avoidance", "--seed", "1000005", "--out", arg(&scene)]);
+    let output = cnfmp(&[
+        "sim",
+        "render",
+        "--task",
+        "wall_avoidance",
+        "--seed",
+        "1000005",
+        "--out",
+        arg(&scene),
+    ]);
     assert!(output.status.success(), "{}", stderr(&output));
-    let (image, masks, objects) = (scene.join("image.png"), scene.join("masks.png"), scene.join("objects.json"));
+    let (image, masks, objects) = (
+        scene.join("image.png"),
+        scene.join("masks.png"),
+        scene.join("objects.json"),
+    );
     let traj = dir.path().join("traj.json");
     let predict = |model: &Path, image: &Path, masks: &Path, objects: &Path| {
-        cnfmp(&["predict", "--model", arg(model), "--image", arg(image), "--masks", arg(masks), "--objects", arg(objects), "--out", arg(&traj)])
+        cnfmp(&[
+            "predict",
+            "--model",
+            arg(model),
+            "--image",
+            arg(image),
+            "--masks",
+            arg(masks),
+            "--objects",
+            arg(objects),
+            "--out",
+            arg(&traj),
+        ])
     };
     let output = predict(&model, &image, &masks, &objects);
     assert!(output.status.success(), "{}", stderr(&output));
@@ -66,7 +136,12 @@ fn train_predict_eval_and_bad_inputs() {
     assert!(predicted["frames"].as_array().unwrap().len() > 100);
     let objects_out = predicted["objects"].as_array().unwrap();
     assert_eq!(objects_out.len(), 2);
-    assert!(objects_out.iter().all(|o| o["psnr_db"].as_f64().unwrap() > 0.0), "{predicted}");
+    assert!(
+        objects_out
+            .iter()
+            .all(|o| o["psnr_db"].as_f64().unwrap() > 0.0),
+        "{predicted}"
+    );
     // The file is a valid trajectory for the rest of the CLI.
     let output = cnfmp(&["trajectory", "inspect", arg(&traj)]);
     assert!(output.status.success(), "{}", stderr(&output));
@@ -76,35 +151,83 @@ fn train_predict_eval_and_bad_inputs() {
     let weightless = dir.path().join("weightless");
     std::fs::create_dir(&weightless).unwrap();
     std::fs::copy(model.join("config.json"), weightless.join("config.json")).unwrap();
-    assert_bad_input(&predict(&weightless, &image, &masks, &objects), "model.safetensors");
+    assert_bad_input(
+        &predict(&weightless, &image, &masks, &objects),
+        "model.safetensors",
+    );
     let configless = dir.path().join("configless");
     std::fs::create_dir(&configless).unwrap();
-    assert_bad_input(&predict(&configless, &image, &masks, &objects), "config.json");
+    assert_bad_input(
+        &predict(&configless, &image, &masks, &objects),
+        "config.json",
+    );
     let other = dir.path().join("other");
-    let output = cnfmp(&["sim", "render", "--task", "cube_stacking", "--seed", "1000000", "--out", arg(&other)]);
+    let output = cnfmp(&[
+        "sim",
+        "render",
+        "--task",
+        "cube_stacking",
+        "--seed",
+        "1000000",
+        "--out",
+        arg(&other),
+    ]);
     assert!(output.status.success(), "{}", stderr(&output));
     let small_masks = dir.path().join("small.png");
     // A 1x1 8-bit grey PNG.
     std::fs::write(
         &small_masks,
         [
-            0x89, 0x50, 0x4E, 0x47, 0x0D, 0x0A, 0x1A, 0x0A, 0, 0, 0, 0x0D, 0x49, 0x48, 0x44, 0x52, 0, 0, 0, 1, 0, 0, 0, 1, 8, 0, 0, 0, 0, 0x3A,
-            0x7E, 0x9B, 0x55, 0, 0, 0, 0x0A, 0x49, 0x44, 0x41, 0x54, 0x78, 0x9C, 0x63, 0x60, 0, 0, 0, 2, 0, 1, 0x48, 0xAF, 0xA4, 0x71, 0, 0, 0,
-            0, 0x49, 0x45, 0x4E, 0x44, 0xAE, 0x42, 0x60, 0x82,
+            0x89, 0x50, 0x4E, 0x47, 0x0D, 0x0A, 0x1A, 0x0A, 0, 0, 0, 0x0D, 0x49, 0x48, 0x44, 0x52,
+            0, 0, 0, 1, 0, 0, 0, 1, 8, 0, 0, 0, 0, 0x3A, 0x7E, 0x9B, 0x55, 0, 0, 0, 0x0A, 0x49,
+            0x44, 0x41, 0x54, 0x78, 0x9C, 0x63, 0x60, 0, 0, 0, 2, 0, 1, 0x48, 0xAF, 0xA4, 0x71, 0,
+            0, 0, 0, 0x49, 0x45, 0x4E, 0x44, 0xAE, 0x42, 0x60, 0x82,
         ],
     )
     .unwrap();
-    assert_bad_input(&predict(&model, &image, &small_masks, &objects), "must have the same size");
+    assert_bad_input(
+        &predict(&model, &image, &small_masks, &objects),
+        "must have the same size",
+    );
     let one_object = dir.path().join("one.json");
     std::fs::write(&one_object, r#"["wall"]"#).unwrap();
-    assert_bad_input(&predict(&model, &image, &masks, &one_object), "names 1 object(s) but the masks use label 2");
-    assert_bad_input(&predict(&model, &image, &other.join("masks.png"), &other.join("objects.json")), "object slot");
-    assert_eq!(std::fs::read(&traj).unwrap(), before, "a failed predict leaves the earlier output alone");
+    assert_bad_input(
+        &predict(&model, &image, &masks, &one_object),
+        "names 1 object(s) but the masks use label 2",
+    );
+    assert_bad_input(
+        &predict(
+            &model,
+            &image,
+            &other.join("masks.png"),
+            &other.join("objects.json"),
+        ),
+        "object slot",
+    );
+    assert_eq!(
+        std::fs::read(&traj).unwrap(),
+        before,
+        "a failed predict leaves the earlier output alone"
+    );
 
     let report = dir.path().join("eval.json");
-    let output = cnfmp(&["eval", "--model", arg(&model), "--task", "wall_avoidance", "--episodes", "2", "--seed-start", "1000010", "--json", arg(&report)]);
+    let output = cnfmp(&[
+        "eval",
+        "--model",
+        arg(&model),
+        "--task",
+        "wall_avoidance",
+        "--episodes",
+        "2",
+        "--seed-start",
+        "1000010",
+        "--json",
+        arg(&report),
+    ]);
     assert!(output.status.success(), "{}", stderr(&output));
-    assert!(String::from_utf8_lossy(&output.stdout).contains("on 2 held-out wall_avoidance scenes"));
+    assert!(
+        String::from_utf8_lossy(&output.stdout).contains("on 2 held-out wall_avoidance scenes")
+    );
     let summary: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
     let episodes = summary["per_episode"].as_array().unwrap();
     assert_eq!(episodes.len(), 2);
@@ -112,6 +235,30 @@ fn train_predict_eval_and_bad_inputs() {
     assert!(episodes.iter().all(|e| e["med_cm"].as_f64().unwrap() > 0.0));
     let rate = summary["success_rate"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&rate));
-    assert_bad_input(&cnfmp(&["eval", "--model", arg(&model), "--task", "wall_avoidance", "--episodes", "2", "--seed-start", "5"]), "held-out");
-    assert_bad_input(&cnfmp(&["eval", "--model", arg(&model), "--task", "cube_stacking", "--episodes", "1"]), "trained on wall_avoidance");
+    assert_bad_input(
+        &cnfmp(&[
+            "eval",
+            "--model",
+            arg(&model),
+            "--task",
+            "wall_avoidance",
+            "--episodes",
+            "2",
+            "--seed-start",
+            "5",
+        ]),
+        "held-out",
+    );
+    assert_bad_input(
+        &cnfmp(&[
+            "eval",
+            "--model",
+            arg(&model),
+            "--task",
+            "cube_stacking",
+            "--episodes",
+            "1",
+        ]),
+        "trained on wall_avoidance",
+    );
 }

@@ -93,20 +93,39 @@ impl Bridge {
     /// Trains a model (`cnfmp.core.api.train`); progress lines go to stderr.
     pub fn core_train(&self, request: &TrainRequest) -> Result<TrainReport, BridgeError> {
         let r = request.clone();
-        self.call_json("cnfmp.core.api", "train", (r.dataset, r.out, r.config, r.steps, r.seed, r.command))
+        self.call_json(
+            "cnfmp.core.api",
+            "train",
+            (r.dataset, r.out, r.config, r.steps, r.seed, r.command),
+        )
     }
 
     /// Predicts the trajectory for an encoded scene image and label-map masks of the same
     /// size, with `objects` naming the labels in order. The model stays loaded for later calls.
-    pub fn core_predict(&self, model_dir: &Path, image: Vec<u8>, masks: Vec<u8>, objects: Vec<String>) -> Result<Prediction, BridgeError> {
+    pub fn core_predict(
+        &self,
+        model_dir: &Path,
+        image: Vec<u8>,
+        masks: Vec<u8>,
+        objects: Vec<String>,
+    ) -> Result<Prediction, BridgeError> {
         let model_dir = model_dir.to_path_buf();
         let json: String = self.call(move |py| {
-            let args = (model_dir, PyBytes::new(py, &image), PyBytes::new(py, &masks), objects);
-            let run = || -> PyResult<String> { py.import("cnfmp.core.api")?.call_method1("predict", args)?.extract() };
+            let args = (
+                model_dir,
+                PyBytes::new(py, &image),
+                PyBytes::new(py, &masks),
+                objects,
+            );
+            let run = || -> PyResult<String> {
+                py.import("cnfmp.core.api")?
+                    .call_method1("predict", args)?
+                    .extract()
+            };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
-        let mut prediction: Prediction =
-            serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("cnfmp.core.api.predict: {err}")))?;
+        let mut prediction: Prediction = serde_json::from_str(&json)
+            .map_err(|err| BridgeError::Protocol(format!("cnfmp.core.api.predict: {err}")))?;
         prediction.json = json;
         Ok(prediction)
     }

@@ -85,45 +85,78 @@ pub struct EvalArgs {
 }
 
 fn require_file(path: &Path, what: &str) -> Result<(), Failure> {
-    if path.is_file() { Ok(()) } else { Err(Failure::BadInput(format!("{what} {} does not exist or is not a file", path.display()))) }
+    if path.is_file() {
+        Ok(())
+    } else {
+        Err(Failure::BadInput(format!(
+            "{what} {} does not exist or is not a file",
+            path.display()
+        )))
+    }
 }
 
 pub fn train(args: TrainArgs) -> Result<(), Failure> {
     if !args.dataset.is_dir() {
-        return Err(Failure::BadInput(format!("dataset {} is not a directory", args.dataset.display())));
+        return Err(Failure::BadInput(format!(
+            "dataset {} is not a directory",
+            args.dataset.display()
+        )));
     }
     if args.out.exists() {
-        return Err(Failure::BadInput(format!("{} already exists; models are never overwritten, choose a new --out", args.out.display())));
+        return Err(Failure::BadInput(format!(
+            "{} already exists; models are never overwritten, choose a new --out",
+            args.out.display()
+        )));
     }
     if let Some(config) = &args.config {
         require_file(config, "config")?;
     }
-    let command = std::iter::once("cnfmp".to_owned()).chain(std::env::args().skip(1)).collect::<Vec<_>>().join(" ");
-    let request = TrainRequest { dataset: args.dataset, out: args.out, config: args.config, steps: args.steps, seed: args.seed, command };
+    let command = std::iter::once("cnfmp".to_owned())
+        .chain(std::env::args().skip(1))
+        .collect::<Vec<_>>()
+        .join(" ");
+    let request = TrainRequest {
+        dataset: args.dataset,
+        out: args.out,
+        config: args.config,
+        steps: args.steps,
+        seed: args.seed,
+        command,
+    };
     let report = Bridge::start_default()?.core_train(&request)?;
     print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))
 }
 
 /// Object names from an objects.json: `["a", "b"]` or `{"objects": ["a", "b"], ...}`.
 fn read_objects(path: &Path) -> Result<Vec<String>, Failure> {
-    let text = fs::read_to_string(path).map_err(|err| Failure::BadInput(format!("cannot read objects {}: {err}", path.display())))?;
-    let value: Value = serde_json::from_str(&text).map_err(|err| Failure::BadInput(format!("objects {}: not JSON: {err}", path.display())))?;
+    let text = fs::read_to_string(path).map_err(|err| {
+        Failure::BadInput(format!("cannot read objects {}: {err}", path.display()))
+    })?;
+    let value: Value = serde_json::from_str(&text)
+        .map_err(|err| Failure::BadInput(format!("objects {}: not JSON: {err}", path.display())))?;
     let list = match &value {
         Value::Object(map) => map.get("objects").cloned().unwrap_or(Value::Null),
         other => other.clone(),
     };
-    serde_json::from_value::<Vec<String>>(list)
-        .map_err(|_| Failure::BadInput(format!("objects {}: expected a list of names or an object with an \"objects\" list", path.display())))
+    serde_json::from_value::<Vec<String>>(list).map_err(|_| {
+        Failure::BadInput(format!(
+            "objects {}: expected a list of names or an object with an \"objects\" list",
+            path.display()
+        ))
+    })
 }
 
 fn read_bytes(path: &Path, what: &str) -> Result<Vec<u8>, Failure> {
-    fs::read(path).map_err(|err| Failure::BadInput(format!("cannot read {what} {}: {err}", path.display())))
+    fs::read(path)
+        .map_err(|err| Failure::BadInput(format!("cannot read {what} {}: {err}", path.display())))
 }
 
 /// The prediction's trajectory, validated by the Rust trajectory code (the diagnostics stay
 /// as metadata).
 fn trajectory_of(prediction: &Prediction) -> Result<Trajectory, Failure> {
-    Trajectory::from_json_str(&prediction.json).map_err(|err| Failure::Environment(format!("the model produced an invalid trajectory: {err}")))
+    Trajectory::from_json_str(&prediction.json).map_err(|err| {
+        Failure::Environment(format!("the model produced an invalid trajectory: {err}"))
+    })
 }
 
 fn describe_objects(objects: &[ObjectEstimate]) -> String {
@@ -143,13 +176,20 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
     let objects = read_objects(&args.objects)?;
     for (file, what) in [("config.json", "config"), ("model.safetensors", "weights")] {
         if !args.model.join(file).is_file() {
-            return Err(Failure::BadInput(format!("{} is not a model directory: its {what} ({file}) is missing", args.model.display())));
+            return Err(Failure::BadInput(format!(
+                "{} is not a model directory: its {what} ({file}) is missing",
+                args.model.display()
+            )));
         }
     }
     let prediction = Bridge::start_default()?.core_predict(&args.model, image, masks, objects)?;
     let trajectory = trajectory_of(&prediction)?;
     write_atomically(&args.out, trajectory.to_json_string().as_bytes())?;
-    let total = prediction.timings_ms.get("total").and_then(Value::as_f64).unwrap_or(f64::NAN);
+    let total = prediction
+        .timings_ms
+        .get("total")
+        .and_then(Value::as_f64)
+        .unwrap_or(f64::NAN);
     eprintln!(
         "{}: {} frames at {} Hz, {:.2} s; objects: {}; inference {total:.0} ms",
         args.out.display(),
@@ -206,11 +246,18 @@ fn quantile(values: &[f64], q: f64) -> f64 {
 
 fn mean(values: impl Iterator<Item = f64>) -> f64 {
     let (sum, count) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-    if count == 0 { f64::NAN } else { sum / count as f64 }
+    if count == 0 {
+        f64::NAN
+    } else {
+        sum / count as f64
+    }
 }
 
 pub fn eval(args: EvalArgs) -> Result<(), Failure> {
-    let last = args.seed_start.checked_add(args.episodes - 1).unwrap_or(u64::MAX);
+    let last = args
+        .seed_start
+        .checked_add(args.episodes - 1)
+        .unwrap_or(u64::MAX);
     if args.seed_start < FIRST_HELDOUT_SEED || last >= HELDOUT_SEED_END {
         return Err(Failure::BadInput(format!(
             "evaluation scenes must be held-out: seeds {}..={last} are not all within {FIRST_HELDOUT_SEED}..={}",
@@ -218,11 +265,29 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
             HELDOUT_SEED_END - 1
         )));
     }
-    require_file(&args.model.join("config.json"), "model config")?;
+    let config_path = args.model.join("config.json");
+    require_file(&config_path, "model config")?;
+    let config: Value = serde_json::from_str(&fs::read_to_string(&config_path).map_err(|err| {
+        Failure::BadInput(format!("cannot read {}: {err}", config_path.display()))
+    })?)
+    .map_err(|err| Failure::BadInput(format!("{} is not JSON: {err}", config_path.display())))?;
+    let model_task = config
+        .get("task")
+        .and_then(Value::as_str)
+        .unwrap_or_default();
+    if model_task != args.task {
+        return Err(Failure::BadInput(format!(
+            "the model at {} was trained on {model_task}, not {}",
+            args.model.display(),
+            args.task
+        )));
+    }
     let started = Instant::now();
     let bridge = Bridge::start_default()?;
     let control_hz = bridge.sim_control_hz()?;
-    let scratch = tempfile::tempdir().map_err(|err| Failure::Environment(format!("cannot create a temporary directory: {err}")))?;
+    let scratch = tempfile::tempdir().map_err(|err| {
+        Failure::Environment(format!("cannot create a temporary directory: {err}"))
+    })?;
     let mut episodes = Vec::new();
     for (index, seed) in (args.seed_start..=last).enumerate() {
         let scene_dir = scratch.path().join(format!("scene-{seed}"));
@@ -232,26 +297,28 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
         let call = Instant::now();
         let prediction = bridge.core_predict(&args.model, image, masks, scene.objects.clone())?;
         let latency_ms = call.elapsed().as_secs_f64() * 1e3;
-        if prediction.model.task != args.task {
-            return Err(Failure::BadInput(format!(
-                "the model at {} was trained on {}, not {}",
-                args.model.display(),
-                prediction.model.task,
-                args.task
-            )));
-        }
-        let predicted = resample(&trajectory_of(&prediction)?, ResampleTarget::Fps(control_hz))?;
+        let predicted = resample(
+            &trajectory_of(&prediction)?,
+            ResampleTarget::Fps(control_hz),
+        )?;
         // A trajectory the simulator refuses (a frame outside the workspace) is a failed
         // episode, not a failed evaluation.
         let (success, reasons) = match bridge.sim_execute(&args.task, seed, predicted.to_arrays()) {
             Ok(verdict) => (verdict.success, verdict.reasons),
-            Err(BridgeError::InvalidInput(message)) => (false, vec![format!("not executed: {message}")]),
+            Err(BridgeError::InvalidInput(message)) => {
+                (false, vec![format!("not executed: {message}")])
+            }
             Err(other) => return Err(other.into()),
         };
         let (expert, _) = bridge.sim_expert(&args.task, seed)?;
-        let expert = Trajectory::from_arrays(&expert, Map::new())
-            .map_err(|err| Failure::Environment(format!("the {} expert produced an invalid trajectory: {err}", args.task)))?;
-        let med_cm = mean_euclidean_distance_cm(&predicted, &expert).map_err(Failure::Environment)?;
+        let expert = Trajectory::from_arrays(&expert, Map::new()).map_err(|err| {
+            Failure::Environment(format!(
+                "the {} expert produced an invalid trajectory: {err}",
+                args.task
+            ))
+        })?;
+        let med_cm =
+            mean_euclidean_distance_cm(&predicted, &expert).map_err(Failure::Environment)?;
         episodes.push(Episode {
             seed,
             success,
@@ -271,12 +338,22 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
             if episode.success { "success" } else { "FAIL" },
             episode.med_cm,
             episode.latency_ms,
-            if episode.success { String::new() } else { format!(" ({})", episode.reasons.join("; ")) },
+            if episode.success {
+                String::new()
+            } else {
+                format!(" ({})", episode.reasons.join("; "))
+            },
             episodes.len()
         );
     }
-    let warm: Vec<f64> = episodes.iter().skip(usize::from(episodes.len() > 1)).map(|e| e.latency_ms).collect();
-    let ious = episodes.iter().flat_map(|e| e.objects.iter().filter_map(|o| o.mask_iou));
+    let warm: Vec<f64> = episodes
+        .iter()
+        .skip(usize::from(episodes.len() > 1))
+        .map(|e| e.latency_ms)
+        .collect();
+    let ious = episodes
+        .iter()
+        .flat_map(|e| e.objects.iter().filter_map(|o| o.mask_iou));
     let summary = EvalSummary {
         model: args.model.display().to_string(),
         task: args.task.clone(),
@@ -292,7 +369,12 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
         per_episode: episodes,
     };
     if let Some(path) = &args.json {
-        write_atomically(path, serde_json::to_string_pretty(&summary).expect("summary serialises").as_bytes())?;
+        write_atomically(
+            path,
+            serde_json::to_string_pretty(&summary)
+                .expect("summary serialises")
+                .as_bytes(),
+        )?;
     }
     print_stdout(&format!(
         "{} on {} held-out {} scenes (seeds {}..={last}): success {:.2}, MED {:.2} cm, latency p50 {:.0} ms / p95 {:.0} ms, \

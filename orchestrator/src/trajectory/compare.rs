@@ -8,13 +8,25 @@ use super::Trajectory;
 /// trajectory that ends early or late is charged for it.
 ///
 /// Errors when the rates differ by more than 1e-9 Hz (resample first).
-pub fn mean_euclidean_distance_cm(predicted: &Trajectory, reference: &Trajectory) -> Result<f64, String> {
+pub fn mean_euclidean_distance_cm(
+    predicted: &Trajectory,
+    reference: &Trajectory,
+) -> Result<f64, String> {
     if (predicted.fps - reference.fps).abs() > 1e-9 {
-        return Err(format!("MED needs equal rates; got {} Hz and {} Hz (resample first)", predicted.fps, reference.fps));
+        return Err(format!(
+            "MED needs equal rates; got {} Hz and {} Hz (resample first)",
+            predicted.fps, reference.fps
+        ));
     }
     let steps = predicted.frames.len().max(reference.frames.len());
-    let at = |trajectory: &Trajectory, k: usize| trajectory.frames[k.min(trajectory.frames.len() - 1)].pose.position;
-    let total: f64 = (0..steps).map(|k| (at(predicted, k) - at(reference, k)).norm()).sum();
+    let at = |trajectory: &Trajectory, k: usize| {
+        trajectory.frames[k.min(trajectory.frames.len() - 1)]
+            .pose
+            .position
+    };
+    let total: f64 = (0..steps)
+        .map(|k| (at(predicted, k) - at(reference, k)).norm())
+        .sum();
     Ok(100.0 * total / steps as f64)
 }
 
@@ -32,7 +44,10 @@ mod tests {
             .enumerate()
             .map(|(k, &x)| Frame {
                 t: k as f64 / fps,
-                pose: Pose { position: Vector3::new(x, 0.0, 0.0), orientation: UnitQuaternion::identity() },
+                pose: Pose {
+                    position: Vector3::new(x, 0.0, 0.0),
+                    orientation: UnitQuaternion::identity(),
+                },
                 gripper: 1.0,
             })
             .collect();
@@ -62,6 +77,8 @@ mod tests {
 
     #[test]
     fn different_rates_are_refused() {
-        assert!(mean_euclidean_distance_cm(&line(10.0, &[0.0, 1.0]), &line(50.0, &[0.0, 1.0])).is_err());
+        assert!(
+            mean_euclidean_distance_cm(&line(10.0, &[0.0, 1.0]), &line(50.0, &[0.0, 1.0])).is_err()
+        );
     }
 }

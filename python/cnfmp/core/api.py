@@ -100,10 +100,6 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
     if len(objects) > c.num_objects:
         raise InputError(f"{len(objects)} objects given but the model ({c.task}) has {c.num_objects} object slot(s): "
                          f"{', '.join(c.object_names)}")
-    for slot in range(c.num_objects):
-        if not (labels == slot + 1).any() and not c.slot_can_be_absent[slot]:
-            raise InputError(f"the masks have no pixels of object {slot + 1} ({c.object_names[slot]}), "
-                             f"which every training scene of this model had")
     decoded = time.perf_counter()
     result = model.predict(image, labels, seed=seed)
     traj = result["trajectory"]

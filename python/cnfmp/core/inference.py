@@ -16,6 +16,7 @@ import torch
 
 from cnfmp.core import data as core_data
 from cnfmp.core.modeling_cnfmp import CnfmpModel, decode_trajectory, output_times, pixel_coords
+from cnfmp.errors import InputError
 
 
 def psnr_db(mse: float) -> float:
@@ -89,6 +90,10 @@ class Predictor:
         """
         c = self.config
         inputs = core_data.scene_inputs(image, labels, c.num_objects, c.field_resolution, c.mask_dilation)
+        for slot in range(c.num_objects):
+            if not inputs["present"][slot] and not c.slot_can_be_absent[slot]:
+                raise InputError(f"the masks have no pixels of object {slot + 1} ({c.object_names[slot]}), "
+                                 "which every training scene of this model had")
         rgb = torch.from_numpy(inputs["rgb"].reshape(-1, 3))
         colour = torch.from_numpy(inputs["colour"])
         present = torch.from_numpy(inputs["present"])

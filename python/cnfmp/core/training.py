@@ -213,6 +213,10 @@ def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps:
         save_model(model, staging)
         with open(os.path.join(staging, CARD_FILE), "w", encoding="utf-8") as f:
             f.write(model_card(model.config, summary, dataset_dir, demos, command))
+        # mkdtemp makes a private directory; a model is an ordinary, shareable artifact.
+        os.chmod(staging, 0o755)
+        for name in os.listdir(staging):
+            os.chmod(os.path.join(staging, name), 0o644)
         os.rename(staging, out_dir)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
