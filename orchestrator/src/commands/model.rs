@@ -254,10 +254,7 @@ fn mean(values: impl Iterator<Item = f64>) -> f64 {
 }
 
 pub fn eval(args: EvalArgs) -> Result<(), Failure> {
-    let last = args
-        .seed_start
-        .checked_add(args.episodes - 1)
-        .unwrap_or(u64::MAX);
+    let last = args.seed_start.saturating_add(args.episodes - 1);
     if args.seed_start < FIRST_HELDOUT_SEED || last >= HELDOUT_SEED_END {
         return Err(Failure::BadInput(format!(
             "evaluation scenes must be held-out: seeds {}..={last} are not all within {FIRST_HELDOUT_SEED}..={}",

@@ -14,9 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cnfmp.data.generate import IMAGE_KEY
 from cnfmp.errors import InputError
-
-IMAGE_KEY = "observation.images.front"
 
 
 @dataclass
