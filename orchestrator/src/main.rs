@@ -4,9 +4,7 @@
 
 use clap::{Parser, Subcommand};
 
-use cnfmp::commands::{
-    self, dataset::DatasetCommand, model, sim::SimCommand, trajectory::TrajectoryCommand,
-};
+use cnfmp::commands::{self, dataset::DatasetCommand, model, sim::SimCommand, trajectory::TrajectoryCommand};
 
 /// Compositional Neural Field Movement Primitives: scene image + prompt -> robot trajectory.
 #[derive(Debug, Parser)]
@@ -57,3 +55,4 @@ fn main() {
         std::process::exit(failure.exit_code());
     }
 }
+

@@ -15,8 +15,7 @@ fn vector(max: f64) -> impl Strategy<Value = Vector3<f64>> {
 
 fn rotation() -> impl Strategy<Value = UnitQuaternion<f64>> {
     (vector(1.0), 0.0..PI).prop_filter_map("non-zero axis", |(axis, angle)| {
-        (axis.norm() > 1e-3)
-            .then(|| UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(axis), angle))
+        (axis.norm() > 1e-3).then(|| UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(axis), angle))
     })
 }
 
@@ -30,14 +29,7 @@ fn trajectory(max_frames: usize) -> impl Strategy<Value = Trajectory> {
                 .enumerate()
                 .map(|(k, (position, turn, gripper))| {
                     orientation *= so3::exp(turn);
-                    Frame {
-                        t: t0 + k as f64 / fps,
-                        pose: Pose {
-                            position: *position,
-                            orientation,
-                        },
-                        gripper: *gripper,
-                    }
+                    Frame { t: t0 + k as f64 / fps, pose: Pose { position: *position, orientation }, gripper: *gripper }
                 })
                 .collect();
             Trajectory::new(fps, frames, Default::default()).unwrap()
@@ -127,23 +119,13 @@ fn smoothing_leaves_uniform_motion_alone() {
     let frames = (0..50)
         .map(|k| {
             let t = k as f64 * 0.05;
-            Frame {
-                t,
-                pose: Pose {
-                    position: Vector3::new(0.1, 0.2, 0.3) * t,
-                    orientation: so3::exp(&(spin * t)),
-                },
-                gripper: 1.0,
-            }
+            Frame { t, pose: Pose { position: Vector3::new(0.1, 0.2, 0.3) * t, orientation: so3::exp(&(spin * t)) }, gripper: 1.0 }
         })
         .collect();
     let trajectory = Trajectory::new(20.0, frames, Default::default()).unwrap();
     let out = smooth(&trajectory, 0.2).unwrap();
     for (a, b) in trajectory.frames.iter().zip(&out.frames) {
-        assert!(
-            (a.pose.position - b.pose.position).norm() < 1e-12,
-            "{a:?} vs {b:?}"
-        );
+        assert!((a.pose.position - b.pose.position).norm() < 1e-12, "{a:?} vs {b:?}");
         assert!(same_rotation(&a.pose.orientation, &b.pose.orientation) < 1e-9);
     }
 }
@@ -155,28 +137,11 @@ fn smoothing_reduces_jitter() {
     let frames = (0..100)
         .map(|k| {
             let jitter = if k % 2 == 0 { 0.01 } else { -0.01 };
-            Frame {
-                t: k as f64 * 0.02,
-                pose: Pose {
-                    position: Vector3::new(0.3, jitter, 0.2),
-                    orientation: UnitQuaternion::identity(),
-                },
-                gripper: 1.0,
-            }
+            Frame { t: k as f64 * 0.02, pose: Pose { position: Vector3::new(0.3, jitter, 0.2), orientation: UnitQuaternion::identity() }, gripper: 1.0 }
         })
         .collect();
     let trajectory = Trajectory::new(50.0, frames, Default::default()).unwrap();
     let out = smooth(&trajectory, 0.05).unwrap();
-    let roughness = |tr: &Trajectory| {
-        tr.frames
-            .windows(2)
-            .map(|w| (w[1].pose.position - w[0].pose.position).norm())
-            .sum::<f64>()
-    };
-    assert!(
-        roughness(&out) < 0.1 * roughness(&trajectory),
-        "{} vs {}",
-        roughness(&out),
-        roughness(&trajectory)
-    );
+    let roughness = |tr: &Trajectory| tr.frames.windows(2).map(|w| (w[1].pose.position - w[0].pose.position).norm()).sum::<f64>();
+    assert!(roughness(&out) < 0.1 * roughness(&trajectory), "{} vs {}", roughness(&out), roughness(&trajectory));
 }

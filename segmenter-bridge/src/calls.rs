@@ -60,40 +60,27 @@ impl Bridge {
     /// torch threads, a MuJoCo test render. Takes a few seconds (it imports torch and lerobot).
     pub fn doctor(&self) -> Result<DoctorReport, BridgeError> {
         let json = self.call(|py| {
-            let run = || -> PyResult<String> {
-                py.import("cnfmp.doctor")?
-                    .call_method0("collect")?
-                    .extract()
-            };
+            let run = || -> PyResult<String> { py.import("cnfmp.doctor")?.call_method0("collect")?.extract() };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
-        serde_json::from_str(&json)
-            .map_err(|err| BridgeError::Protocol(format!("doctor report: {err}")))
+        serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("doctor report: {err}")))
     }
 
     /// Moves `values` (any shape) into a numpy array without copying, has Python double it in
     /// place (`cnfmp.runtime.bridge_selftest`), and reports whether the buffer Python returned
     /// is the one Rust allocated. Used by `cnfmp doctor` and the tests to prove zero-copy.
-    pub fn array_round_trip(
-        &self,
-        values: numpy::ndarray::ArrayD<f64>,
-    ) -> Result<ArrayRoundTrip, BridgeError> {
+    pub fn array_round_trip(&self, values: numpy::ndarray::ArrayD<f64>) -> Result<ArrayRoundTrip, BridgeError> {
         self.call(move |py| {
             let sent_at = values.as_ptr() as usize;
             let sent = values.into_pyarray(py);
             let run = || -> PyResult<Bound<'_, PyArrayDyn<f64>>> {
-                let back = py
-                    .import("cnfmp.runtime")?
-                    .call_method1("bridge_selftest", (sent,))?;
+                let back = py.import("cnfmp.runtime")?.call_method1("bridge_selftest", (sent,))?;
                 Ok(back.cast_into::<PyArrayDyn<f64>>()?)
             };
             let back = run().map_err(|err| BridgeError::python(py, &err))?;
             let same_buffer = back.data() as usize == sent_at;
             let view = back.readonly();
-            Ok(ArrayRoundTrip {
-                values: view.as_array().to_owned(),
-                same_buffer,
-            })
+            Ok(ArrayRoundTrip { values: view.as_array().to_owned(), same_buffer })
         })
     }
 }

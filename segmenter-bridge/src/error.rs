@@ -31,10 +31,7 @@ impl PythonException {
             .fully_qualified_name()
             .map(|name| name.to_string())
             .unwrap_or_else(|_| "<unknown exception type>".to_owned());
-        let type_name = type_name
-            .strip_prefix("builtins.")
-            .unwrap_or(&type_name)
-            .to_owned();
+        let type_name = type_name.strip_prefix("builtins.").unwrap_or(&type_name).to_owned();
         let message = err
             .value(py)
             .str()
@@ -45,11 +42,7 @@ impl PythonException {
             .and_then(|tb| tb.format().ok())
             .map(|text| frames_of(&text))
             .unwrap_or_default();
-        PythonException {
-            type_name,
-            message,
-            traceback,
-        }
+        PythonException { type_name, message, traceback }
     }
 
     /// The traceback tail as text, one frame per paragraph, innermost last.
@@ -92,9 +85,7 @@ impl fmt::Display for PythonException {
 #[derive(Debug, Clone, thiserror::Error)]
 pub enum BridgeError {
     /// No usable venv where the bridge was told to look.
-    #[error(
-        "Python venv not usable at {venv}: {reason}; fix: run `make setup` in the repository root (or set CNFMP_VENV to the project venv)"
-    )]
+    #[error("Python venv not usable at {venv}: {reason}; fix: run `make setup` in the repository root (or set CNFMP_VENV to the project venv)")]
     VenvMissing { venv: PathBuf, reason: String },
     /// The interpreter did not start, or started on the wrong prefix.
     #[error("embedded Python failed to start: {0}")]
@@ -121,9 +112,7 @@ impl BridgeError {
     /// Wraps a `PyErr` raised while attached: `cnfmp.errors.InputError` becomes
     /// [`BridgeError::InvalidInput`], anything else [`BridgeError::Python`].
     pub(crate) fn python(py: Python<'_>, err: &PyErr) -> Self {
-        let input_error = py
-            .import("cnfmp.errors")
-            .and_then(|module| module.getattr("InputError"));
+        let input_error = py.import("cnfmp.errors").and_then(|module| module.getattr("InputError"));
         match input_error {
             Ok(class) if err.is_instance(py, &class) => {
                 BridgeError::InvalidInput(PythonException::from_pyerr(py, err).message)
@@ -141,20 +130,15 @@ mod tests {
     fn frames_keep_source_lines_and_drop_markers() {
         let text = "Traceback (most recent call last):\n  File \"a.py\", line 1, in <module>\n    f()\n    ^^^\n  File \"b.py\", line 2, in f\n    raise ValueError\n";
         let frames = frames_of(text);
-        assert_eq!(
-            frames,
-            vec![
-                "File \"a.py\", line 1, in <module>\n    f()".to_owned(),
-                "File \"b.py\", line 2, in f\n    raise ValueError".to_owned(),
-            ]
-        );
+        assert_eq!(frames, vec![
+            "File \"a.py\", line 1, in <module>\n    f()".to_owned(),
+            "File \"b.py\", line 2, in f\n    raise ValueError".to_owned(),
+        ]);
     }
 
     #[test]
     fn frames_keep_only_the_innermost_tail() {
-        let text: String = (0..9)
-            .map(|i| format!("  File \"m.py\", line {i}, in f{i}\n"))
-            .collect();
+        let text: String = (0..9).map(|i| format!("  File \"m.py\", line {i}, in f{i}\n")).collect();
         let frames = frames_of(&text);
         assert_eq!(frames.len(), TRACEBACK_FRAMES);
         assert!(frames.last().unwrap().contains("line 8"));

@@ -31,17 +31,15 @@ impl BridgeConfig {
     pub fn from_env() -> Result<Self, BridgeError> {
         let venv = match std::env::var_os("CNFMP_VENV") {
             Some(path) if !path.is_empty() => PathBuf::from(path),
-            _ => {
-                match option_env!("CNFMP_BUILD_VENV") {
-                    Some(path) => PathBuf::from(path),
-                    None => {
-                        return Err(BridgeError::VenvMissing {
+            _ => match option_env!("CNFMP_BUILD_VENV") {
+                Some(path) => PathBuf::from(path),
+                None => {
+                    return Err(BridgeError::VenvMissing {
                         venv: PathBuf::from("<none>"),
                         reason: "this binary was built without PYO3_PYTHON and CNFMP_VENV is not set".into(),
                     });
-                    }
                 }
-            }
+            },
         };
         let torch_threads = match std::env::var("CNFMP_TORCH_THREADS") {
             Ok(text) => match text.trim().parse::<usize>() {
@@ -54,18 +52,12 @@ impl BridgeConfig {
             },
             Err(_) => 1,
         };
-        Ok(BridgeConfig {
-            venv,
-            torch_threads,
-        })
+        Ok(BridgeConfig { venv, torch_threads })
     }
 
     /// `<venv>/bin/python3`, after checking the venv looks like one.
     pub(crate) fn checked_python(&self) -> Result<PathBuf, BridgeError> {
-        let missing = |reason: String| BridgeError::VenvMissing {
-            venv: self.venv.clone(),
-            reason,
-        };
+        let missing = |reason: String| BridgeError::VenvMissing { venv: self.venv.clone(), reason };
         if !self.venv.join("pyvenv.cfg").is_file() {
             return Err(missing("pyvenv.cfg does not exist (a missing venv would silently fall back to the system interpreter)".into()));
         }
@@ -82,39 +74,26 @@ impl BridgeConfig {
 /// # Safety contract (upheld by the caller)
 /// Called at most once per process, before any other use of the Python C API.
 pub(crate) fn initialize(python: &Path) -> Result<(), BridgeError> {
-    let executable = CString::new(python.as_os_str().as_bytes()).map_err(|_| {
-        BridgeError::Start(format!(
-            "venv path contains a NUL byte: {}",
-            python.display()
-        ))
-    })?;
+    let executable = CString::new(python.as_os_str().as_bytes())
+        .map_err(|_| BridgeError::Start(format!("venv path contains a NUL byte: {}", python.display())))?;
     // SAFETY: runs once (caller's OnceLock), on a PyConfig we initialise and clear ourselves;
     // every PyStatus is checked before moving on.
     unsafe {
         if ffi::Py_IsInitialized() != 0 {
-            return Err(BridgeError::Start(
-                "Python was already initialised by someone else in this process".into(),
-            ));
+            return Err(BridgeError::Start("Python was already initialised by someone else in this process".into()));
         }
         let mut config = MaybeUninit::<ffi::PyConfig>::uninit();
         ffi::PyConfig_InitPythonConfig(config.as_mut_ptr());
         let mut config = config.assume_init();
-        let status =
-            ffi::PyConfig_SetBytesString(&mut config, &mut config.executable, executable.as_ptr());
+        let status = ffi::PyConfig_SetBytesString(&mut config, &mut config.executable, executable.as_ptr());
         if ffi::PyStatus_Exception(status) != 0 {
             ffi::PyConfig_Clear(&mut config);
-            return Err(BridgeError::Start(status_message(
-                "setting PyConfig.executable",
-                status,
-            )));
+            return Err(BridgeError::Start(status_message("setting PyConfig.executable", status)));
         }
         let status = ffi::Py_InitializeFromConfig(&config);
         ffi::PyConfig_Clear(&mut config);
         if ffi::PyStatus_Exception(status) != 0 {
-            return Err(BridgeError::Start(status_message(
-                "Py_InitializeFromConfig",
-                status,
-            )));
+            return Err(BridgeError::Start(status_message("Py_InitializeFromConfig", status)));
         }
         // The initialising thread holds the GIL; hand it back so the worker can attach.
         ffi::PyEval_SaveThread();
@@ -127,9 +106,7 @@ fn status_message(step: &str, status: ffi::PyStatus) -> String {
         format!("exit code {}", status.exitcode)
     } else {
         // SAFETY: CPython sets err_msg to a static NUL-terminated string.
-        unsafe { CStr::from_ptr(status.err_msg) }
-            .to_string_lossy()
-            .into_owned()
+        unsafe { CStr::from_ptr(status.err_msg) }.to_string_lossy().into_owned()
     };
     format!("{step} failed: {detail}")
 }

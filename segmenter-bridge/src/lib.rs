@@ -30,7 +30,7 @@ pub use calls::{ArrayRoundTrip, DoctorCheck, DoctorReport, PythonInfo};
 pub use core::{ModelInfo, ObjectEstimate, Prediction, TrainLosses, TrainReport, TrainRequest};
 pub use error::{BridgeError, PythonException, TRACEBACK_FRAMES};
 pub use interpreter::BridgeConfig;
+pub use sim::{DatasetReport, ExecutionReport, SceneInfo, TaskInfo, TrajectoryArrays};
 /// The ndarray version the bridge's array calls use.
 pub use numpy::ndarray;
-pub use sim::{DatasetReport, ExecutionReport, SceneInfo, TaskInfo, TrajectoryArrays};
 pub use worker::Bridge;

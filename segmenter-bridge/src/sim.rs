@@ -77,24 +77,16 @@ pub struct DatasetReport {
 
 impl Bridge {
     /// Calls `module.function(*args)`, which returns a JSON string, and decodes it.
-    pub(crate) fn call_json<T, A>(
-        &self,
-        module: &'static str,
-        function: &'static str,
-        args: A,
-    ) -> Result<T, BridgeError>
+    pub(crate) fn call_json<T, A>(&self, module: &'static str, function: &'static str, args: A) -> Result<T, BridgeError>
     where
         T: DeserializeOwned + Send + 'static,
         A: for<'py> pyo3::call::PyCallArgs<'py> + Send + 'static,
     {
         let json: String = self.call(move |py| {
-            let run = || -> PyResult<String> {
-                py.import(module)?.call_method1(function, args)?.extract()
-            };
+            let run = || -> PyResult<String> { py.import(module)?.call_method1(function, args)?.extract() };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
-        serde_json::from_str(&json)
-            .map_err(|err| BridgeError::Protocol(format!("{module}.{function}: {err}")))
+        serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("{module}.{function}: {err}")))
     }
 
     /// The benchmark tasks (`cnfmp.sim.api.tasks_json`).
@@ -106,9 +98,7 @@ impl Bridge {
     /// [`Bridge::sim_execute`].
     pub fn sim_control_hz(&self) -> Result<f64, BridgeError> {
         self.call(|py| {
-            let run = || -> PyResult<f64> {
-                py.import("cnfmp.sim.api")?.getattr("CONTROL_HZ")?.extract()
-            };
+            let run = || -> PyResult<f64> { py.import("cnfmp.sim.api")?.getattr("CONTROL_HZ")?.extract() };
             run().map_err(|err| BridgeError::python(py, &err))
         })
     }
@@ -116,42 +106,21 @@ impl Bridge {
     /// Renders the (task, seed) scene into `out` (image.png, masks.png, objects.json; see
     /// `cnfmp.sim.api.render`). `out` must not exist or be empty.
     pub fn sim_render(&self, task: &str, seed: u64, out: &Path) -> Result<SceneInfo, BridgeError> {
-        self.call_json(
-            "cnfmp.sim.api",
-            "render",
-            (task.to_owned(), seed, out.to_path_buf()),
-        )
+        self.call_json("cnfmp.sim.api", "render", (task.to_owned(), seed, out.to_path_buf()))
     }
 
     /// The scripted expert's trajectory for (task, seed), at the control rate, and the prompt.
-    pub fn sim_expert(
-        &self,
-        task: &str,
-        seed: u64,
-    ) -> Result<(TrajectoryArrays, String), BridgeError> {
+    pub fn sim_expert(&self, task: &str, seed: u64) -> Result<(TrajectoryArrays, String), BridgeError> {
         let task = task.to_owned();
         self.call(move |py| {
             let run = || -> PyResult<(TrajectoryArrays, String)> {
-                let result = py
-                    .import("cnfmp.sim.api")?
-                    .call_method1("expert", (task, seed))?;
+                let result = py.import("cnfmp.sim.api")?.call_method1("expert", (task, seed))?;
                 let dict = result.cast::<PyDict>()?;
                 let item = |key: &str| -> PyResult<Bound<'_, PyAny>> {
-                    dict.get_item(key)?
-                        .ok_or_else(|| pyo3::exceptions::PyKeyError::new_err(key.to_owned()))
+                    dict.get_item(key)?.ok_or_else(|| pyo3::exceptions::PyKeyError::new_err(key.to_owned()))
                 };
-                let vector = |key: &str| -> PyResult<Array1<f64>> {
-                    Ok(item(key)?
-                        .extract::<PyReadonlyArray1<f64>>()?
-                        .as_array()
-                        .to_owned())
-                };
-                let matrix = |key: &str| -> PyResult<Array2<f64>> {
-                    Ok(item(key)?
-                        .extract::<PyReadonlyArray2<f64>>()?
-                        .as_array()
-                        .to_owned())
-                };
+                let vector = |key: &str| -> PyResult<Array1<f64>> { Ok(item(key)?.extract::<PyReadonlyArray1<f64>>()?.as_array().to_owned()) };
+                let matrix = |key: &str| -> PyResult<Array2<f64>> { Ok(item(key)?.extract::<PyReadonlyArray2<f64>>()?.as_array().to_owned()) };
                 let arrays = TrajectoryArrays {
                     fps: item("fps")?.extract()?,
                     t: vector("t")?,
@@ -168,53 +137,21 @@ impl Bridge {
     /// Executes `trajectory` (sampled at [`Bridge::sim_control_hz`]) in the (task, seed)
     /// scene by physics and returns the judge's verdict. A frame outside the workspace is
     /// [`BridgeError::InvalidInput`].
-    pub fn sim_execute(
-        &self,
-        task: &str,
-        seed: u64,
-        trajectory: TrajectoryArrays,
-    ) -> Result<ExecutionReport, BridgeError> {
+    pub fn sim_execute(&self, task: &str, seed: u64, trajectory: TrajectoryArrays) -> Result<ExecutionReport, BridgeError> {
         let task = task.to_owned();
         let json: String = self.call(move |py| {
-            let TrajectoryArrays {
-                position,
-                orientation,
-                gripper,
-                ..
-            } = trajectory;
-            let args = (
-                task,
-                seed,
-                position.into_pyarray(py),
-                orientation.into_pyarray(py),
-                gripper.into_pyarray(py),
-            );
-            let run = || -> PyResult<String> {
-                py.import("cnfmp.sim.api")?
-                    .call_method1("execute", args)?
-                    .extract()
-            };
+            let TrajectoryArrays { position, orientation, gripper, .. } = trajectory;
+            let args = (task, seed, position.into_pyarray(py), orientation.into_pyarray(py), gripper.into_pyarray(py));
+            let run = || -> PyResult<String> { py.import("cnfmp.sim.api")?.call_method1("execute", args)?.extract() };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
-        serde_json::from_str(&json)
-            .map_err(|err| BridgeError::Protocol(format!("cnfmp.sim.api.execute: {err}")))
+        serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("cnfmp.sim.api.execute: {err}")))
     }
 
     /// Writes a LeRobot v3.0 dataset of `episodes` expert demonstrations of `task` from seeds
     /// `seed`, `seed + 1`, ... into `out` (which must not exist), with `workers` processes
     /// and a progress bar on stderr.
-    pub fn dataset_generate(
-        &self,
-        task: &str,
-        episodes: u64,
-        seed: u64,
-        out: &Path,
-        workers: u32,
-    ) -> Result<DatasetReport, BridgeError> {
-        self.call_json(
-            "cnfmp.data.generate",
-            "generate_dataset",
-            (task.to_owned(), episodes, seed, out.to_path_buf(), workers),
-        )
+    pub fn dataset_generate(&self, task: &str, episodes: u64, seed: u64, out: &Path, workers: u32) -> Result<DatasetReport, BridgeError> {
+        self.call_json("cnfmp.data.generate", "generate_dataset", (task.to_owned(), episodes, seed, out.to_path_buf(), workers))
     }
 }

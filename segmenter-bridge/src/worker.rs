@@ -38,10 +38,7 @@ impl Bridge {
     /// when the interpreter fails, comes up on another prefix, or the process already
     /// started a bridge with a different configuration.
     pub fn start(config: BridgeConfig) -> Result<&'static Bridge, BridgeError> {
-        let started = BRIDGE
-            .get_or_init(|| Bridge::spawn(config.clone()))
-            .as_ref()
-            .map_err(Clone::clone)?;
+        let started = BRIDGE.get_or_init(|| Bridge::spawn(config.clone())).as_ref().map_err(Clone::clone)?;
         if started.config != config {
             return Err(BridgeError::Start(format!(
                 "this process already runs Python with {:?}; cannot restart it with {:?}",
@@ -70,16 +67,10 @@ impl Bridge {
                     serve(py, &inbox);
                 })
             })
-            .map_err(|err| {
-                BridgeError::Start(format!("cannot spawn the Python worker thread: {err}"))
-            })?;
+            .map_err(|err| BridgeError::Start(format!("cannot spawn the Python worker thread: {err}")))?;
         let prefix = ready_rx.recv().map_err(|_| BridgeError::WorkerGone)??;
         check_prefix(&prefix, &config.venv)?;
-        Ok(Bridge {
-            jobs,
-            config,
-            prefix,
-        })
+        Ok(Bridge { jobs, config, prefix })
     }
 
     /// The configuration this bridge was started with.
@@ -119,19 +110,16 @@ impl Bridge {
 /// Applies thread limits and offline flags; returns `sys.prefix`.
 fn configure(py: Python<'_>, threads: usize) -> Result<PathBuf, BridgeError> {
     let run = || -> PyResult<PathBuf> {
-        py.import("cnfmp.runtime")?
-            .call_method1("configure", (threads,))?;
+        py.import("cnfmp.runtime")?.call_method1("configure", (threads,))?;
         py.import("sys")?.getattr("prefix")?.extract::<PathBuf>()
     };
-    run().map_err(
-        |err| match err.is_instance_of::<pyo3::exceptions::PyModuleNotFoundError>(py) {
-            true => BridgeError::Start(format!(
-                "the venv does not contain the cnfmp package ({}); fix: run `make setup`",
-                crate::error::PythonException::from_pyerr(py, &err)
-            )),
-            false => BridgeError::python(py, &err),
-        },
-    )
+    run().map_err(|err| match err.is_instance_of::<pyo3::exceptions::PyModuleNotFoundError>(py) {
+        true => BridgeError::Start(format!(
+            "the venv does not contain the cnfmp package ({}); fix: run `make setup`",
+            crate::error::PythonException::from_pyerr(py, &err)
+        )),
+        false => BridgeError::python(py, &err),
+    })
 }
 
 fn serve(py: Python<'_>, inbox: &Receiver<Job>) {

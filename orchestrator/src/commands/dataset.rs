@@ -33,21 +33,11 @@ pub enum DatasetCommand {
 
 pub fn run(command: DatasetCommand) -> Result<(), Failure> {
     match command {
-        DatasetCommand::Generate {
-            task,
-            episodes,
-            seed,
-            out,
-            workers,
-        } => {
+        DatasetCommand::Generate { task, episodes, seed, out, workers } => {
             if out.exists() {
-                return Err(Failure::BadInput(format!(
-                    "{} already exists; datasets are never overwritten, choose a new --out",
-                    out.display()
-                )));
+                return Err(Failure::BadInput(format!("{} already exists; datasets are never overwritten, choose a new --out", out.display())));
             }
-            let report =
-                Bridge::start_default()?.dataset_generate(&task, episodes, seed, &out, workers)?;
+            let report = Bridge::start_default()?.dataset_generate(&task, episodes, seed, &out, workers)?;
             print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))?;
         }
     }

@@ -21,10 +21,7 @@ pub fn run(json: bool) -> Result<(), Failure> {
         None => Ok(()),
         Some(first) => {
             let failed = report.checks.iter().filter(|check| !check.ok).count();
-            Err(Failure::Environment(format!(
-                "{failed} check(s) failed, first `{}`; fix: {}",
-                first.name, first.fix
-            )))
+            Err(Failure::Environment(format!("{failed} check(s) failed, first `{}`; fix: {}", first.name, first.fix)))
         }
     }
 }
@@ -33,46 +30,18 @@ fn zero_copy_check(bridge: &Bridge) -> DoctorCheck {
     let values = ArrayD::from_shape_fn(IxDyn(&[2, 3]), |ix| (ix[0] * 3 + ix[1]) as f64);
     let expected = values.mapv(|v| 2.0 * v);
     let (ok, detail) = match bridge.array_round_trip(values) {
-        Ok(trip) if trip.same_buffer && trip.values == expected => (
-            true,
-            "2x3 float64 array changed in place by Python, same buffer".to_owned(),
-        ),
-        Ok(trip) => (
-            false,
-            format!(
-                "same buffer: {}, values right: {}",
-                trip.same_buffer,
-                trip.values == expected
-            ),
-        ),
+        Ok(trip) if trip.same_buffer && trip.values == expected => (true, "2x3 float64 array changed in place by Python, same buffer".to_owned()),
+        Ok(trip) => (false, format!("same buffer: {}, values right: {}", trip.same_buffer, trip.values == expected)),
         Err(err) => (false, err.to_string()),
     };
-    DoctorCheck {
-        name: "bridge zero-copy".into(),
-        ok,
-        detail,
-        fix: if ok {
-            String::new()
-        } else {
-            "report a bug: numpy arrays must cross the bridge without copies".into()
-        },
-        backend: None,
-    }
+    DoctorCheck { name: "bridge zero-copy".into(), ok, detail, fix: if ok { String::new() } else { "report a bug: numpy arrays must cross the bridge without copies".into() }, backend: None }
 }
 
 fn render_report(report: &DoctorReport) -> String {
     let python = &report.python;
-    let mut text = format!(
-        "embedded Python {} (sys.prefix {})",
-        python.version, python.prefix
-    );
+    let mut text = format!("embedded Python {} (sys.prefix {})", python.version, python.prefix);
     for check in &report.checks {
-        text += &format!(
-            "\n{} {:<24} {}",
-            if check.ok { "ok  " } else { "FAIL" },
-            check.name,
-            check.detail
-        );
+        text += &format!("\n{} {:<24} {}", if check.ok { "ok  " } else { "FAIL" }, check.name, check.detail);
         if !check.fix.is_empty() {
             text += &format!("\n     fix: {}", check.fix);
         }

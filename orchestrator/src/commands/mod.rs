@@ -14,9 +14,7 @@ use crate::failure::Failure;
 pub fn print_stdout(text: &str) -> Result<(), Failure> {
     let mut out = std::io::stdout().lock();
     match writeln!(out, "{text}").and_then(|()| out.flush()) {
-        Err(err) if err.kind() != ErrorKind::BrokenPipe => Err(Failure::Environment(format!(
-            "cannot write to stdout: {err}"
-        ))),
+        Err(err) if err.kind() != ErrorKind::BrokenPipe => Err(Failure::Environment(format!("cannot write to stdout: {err}"))),
         _ => Ok(()),
     }
 }

@@ -59,21 +59,12 @@ pub fn run(command: SimCommand) -> Result<(), Failure> {
     match command {
         SimCommand::Tasks => {
             let tasks = Bridge::start_default()?.sim_tasks()?;
-            let lines: Vec<String> = tasks
-                .iter()
-                .map(|task| format!("{:<22} {}", task.name, task.description))
-                .collect();
+            let lines: Vec<String> = tasks.iter().map(|task| format!("{:<22} {}", task.name, task.description)).collect();
             print_stdout(&lines.join("\n"))?;
         }
         SimCommand::Render { scene, out } => {
             let info = Bridge::start_default()?.sim_render(&scene.task, scene.seed, &out)?;
-            eprintln!(
-                "{}: {} objects ({}), prompt: {}",
-                out.display(),
-                info.objects.len(),
-                info.objects.join(", "),
-                info.prompt
-            );
+            eprintln!("{}: {} objects ({}), prompt: {}", out.display(), info.objects.len(), info.objects.join(", "), info.prompt);
         }
         SimCommand::Expert { scene, out } => {
             let (arrays, prompt) = Bridge::start_default()?.sim_expert(&scene.task, scene.seed)?;
@@ -81,20 +72,10 @@ pub fn run(command: SimCommand) -> Result<(), Failure> {
             metadata.insert("task".into(), Value::from(scene.task.clone()));
             metadata.insert("seed".into(), Value::from(scene.seed));
             metadata.insert("prompt".into(), Value::from(prompt));
-            let trajectory = Trajectory::from_arrays(&arrays, metadata).map_err(|err| {
-                Failure::Environment(format!(
-                    "the {} expert produced an invalid trajectory: {err}",
-                    scene.task
-                ))
-            })?;
+            let trajectory = Trajectory::from_arrays(&arrays, metadata)
+                .map_err(|err| Failure::Environment(format!("the {} expert produced an invalid trajectory: {err}", scene.task)))?;
             write_atomically(&out, trajectory.to_json_string().as_bytes())?;
-            eprintln!(
-                "{}: {} frames at {} Hz, {:.2} s",
-                out.display(),
-                trajectory.frames.len(),
-                trajectory.fps,
-                trajectory.duration()
-            );
+            eprintln!("{}: {} frames at {} Hz, {:.2} s", out.display(), trajectory.frames.len(), trajectory.fps, trajectory.duration());
         }
         SimCommand::Execute { scene, trajectory } => {
             // Validate the file before paying for the interpreter's start-up.

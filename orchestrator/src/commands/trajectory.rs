@@ -8,10 +8,10 @@ use clap::{ArgGroup, Args, Subcommand};
 use super::print_stdout;
 use crate::failure::Failure;
 use crate::files::write_atomically;
-use crate::trajectory::Trajectory;
 use crate::trajectory::resample::{ResampleTarget, resample};
 use crate::trajectory::smooth::smooth;
 use crate::trajectory::summary::summarize;
+use crate::trajectory::Trajectory;
 
 #[derive(Debug, Subcommand)]
 pub enum TrajectoryCommand {
@@ -73,23 +73,12 @@ pub fn run(command: TrajectoryCommand) -> Result<(), Failure> {
             let input = Trajectory::load(&args.file)?;
             let output = resample(&input, target)?;
             write_atomically(&args.out, output.to_json_string().as_bytes())?;
-            eprintln!(
-                "{}: {} frames -> {}: {} frames at {} Hz",
-                args.file.display(),
-                input.frames.len(),
-                args.out.display(),
-                output.frames.len(),
-                output.fps
-            );
+            eprintln!("{}: {} frames -> {}: {} frames at {} Hz", args.file.display(), input.frames.len(), args.out.display(), output.frames.len(), output.fps);
         }
         TrajectoryCommand::Smooth { file, sigma, out } => {
             let output = smooth(&Trajectory::load(&file)?, sigma)?;
             write_atomically(&out, output.to_json_string().as_bytes())?;
-            eprintln!(
-                "{}: smoothed (sigma {sigma} s) -> {}",
-                file.display(),
-                out.display()
-            );
+            eprintln!("{}: smoothed (sigma {sigma} s) -> {}", file.display(), out.display());
         }
     }
     Ok(())

@@ -61,10 +61,7 @@ pub struct TrajectoryError {
 
 impl TrajectoryError {
     pub fn new(location: impl Into<String>, problem: impl Into<String>) -> Self {
-        TrajectoryError {
-            location: location.into(),
-            problem: problem.into(),
-        }
+        TrajectoryError { location: location.into(), problem: problem.into() }
     }
 }
 
@@ -97,16 +94,8 @@ struct FileTrajectory {
 
 impl Trajectory {
     /// Builds a trajectory from frames, checking every invariant.
-    pub fn new(
-        fps: f64,
-        frames: Vec<Frame>,
-        metadata: Map<String, Value>,
-    ) -> Result<Self, TrajectoryError> {
-        let trajectory = Trajectory {
-            fps,
-            frames,
-            metadata,
-        };
+    pub fn new(fps: f64, frames: Vec<Frame>, metadata: Map<String, Value>) -> Result<Self, TrajectoryError> {
+        let trajectory = Trajectory { fps, frames, metadata };
         trajectory.validate()?;
         Ok(trajectory)
     }
@@ -116,9 +105,7 @@ impl Trajectory {
         let mut deserializer = serde_json::Deserializer::from_str(text);
         let file: FileTrajectory = serde_path_to_error::deserialize(&mut deserializer)
             .map_err(|err| parse_error(text, err))?;
-        deserializer
-            .end()
-            .map_err(|err| TrajectoryError::new("file", format!("not valid JSON: {err}")))?;
+        deserializer.end().map_err(|err| TrajectoryError::new("file", format!("not valid JSON: {err}")))?;
 
         let mut frames = Vec::with_capacity(file.frames.len());
         for (i, raw) in file.frames.iter().enumerate() {
@@ -133,10 +120,7 @@ impl Trajectory {
             if (norm - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
                 return Err(TrajectoryError::new(
                     field("orientation"),
-                    format!(
-                        "quaternion [w,x,y,z] = {:?} has norm {norm:.6}, not 1 (tolerance {QUATERNION_NORM_TOLERANCE})",
-                        raw.orientation
-                    ),
+                    format!("quaternion [w,x,y,z] = {:?} has norm {norm:.6}, not 1 (tolerance {QUATERNION_NORM_TOLERANCE})", raw.orientation),
                 ));
             }
             frames.push(Frame {
@@ -153,9 +137,8 @@ impl Trajectory {
 
     /// Reads and validates a trajectory file. Errors name the file.
     pub fn load(path: &Path) -> Result<Self, TrajectoryError> {
-        let text = std::fs::read_to_string(path).map_err(|err| {
-            TrajectoryError::new(path.display().to_string(), format!("cannot read: {err}"))
-        })?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|err| TrajectoryError::new(path.display().to_string(), format!("cannot read: {err}")))?;
         Trajectory::from_json_str(&text).map_err(|err| TrajectoryError {
             location: format!("{}: {}", path.display(), err.location),
             problem: err.problem,
@@ -188,41 +171,24 @@ impl Trajectory {
     /// Checks every invariant; the error names the first offending frame and field.
     pub fn validate(&self) -> Result<(), TrajectoryError> {
         if !(self.fps.is_finite() && self.fps > 0.0) {
-            return Err(TrajectoryError::new(
-                "fps",
-                format!("must be a finite number > 0, got {}", self.fps),
-            ));
+            return Err(TrajectoryError::new("fps", format!("must be a finite number > 0, got {}", self.fps)));
         }
         if self.frames.is_empty() {
-            return Err(TrajectoryError::new(
-                "frames",
-                "is empty; a trajectory needs at least one frame",
-            ));
+            return Err(TrajectoryError::new("frames", "is empty; a trajectory needs at least one frame"));
         }
         for (i, frame) in self.frames.iter().enumerate() {
             let field = |name: &str| format!("frames[{i}].{name}");
             check_finite(&field("t"), &[frame.t])?;
             check_finite(&field("position"), frame.pose.position.as_slice())?;
-            check_finite(
-                &field("orientation"),
-                frame.pose.orientation.coords.as_slice(),
-            )?;
+            check_finite(&field("orientation"), frame.pose.orientation.coords.as_slice())?;
             check_finite(&field("gripper"), &[frame.gripper])?;
             if !(0.0..=1.0).contains(&frame.gripper) {
-                return Err(TrajectoryError::new(
-                    field("gripper"),
-                    format!("{} is outside [0, 1] (1 = open)", frame.gripper),
-                ));
+                return Err(TrajectoryError::new(field("gripper"), format!("{} is outside [0, 1] (1 = open)", frame.gripper)));
             }
             if i > 0 && frame.t <= self.frames[i - 1].t {
                 return Err(TrajectoryError::new(
                     field("t"),
-                    format!(
-                        "time {} s does not increase (frames[{}].t = {} s)",
-                        frame.t,
-                        i - 1,
-                        self.frames[i - 1].t
-                    ),
+                    format!("time {} s does not increase (frames[{}].t = {} s)", frame.t, i - 1, self.frames[i - 1].t),
                 ));
             }
         }
@@ -242,38 +208,20 @@ impl Trajectory {
         for (i, frame) in self.frames.iter().enumerate() {
             let q = frame.pose.orientation.quaternion();
             arrays.t[i] = frame.t;
-            arrays
-                .position
-                .row_mut(i)
-                .assign(&ndarray::arr1(frame.pose.position.as_slice()));
-            arrays
-                .orientation
-                .row_mut(i)
-                .assign(&ndarray::arr1(&[q.w, q.i, q.j, q.k]));
+            arrays.position.row_mut(i).assign(&ndarray::arr1(frame.pose.position.as_slice()));
+            arrays.orientation.row_mut(i).assign(&ndarray::arr1(&[q.w, q.i, q.j, q.k]));
             arrays.gripper[i] = frame.gripper;
         }
         arrays
     }
 
     /// Builds and validates a trajectory from bridge arrays (quaternions `[w, x, y, z]`).
-    pub fn from_arrays(
-        arrays: &TrajectoryArrays,
-        metadata: Map<String, Value>,
-    ) -> Result<Self, TrajectoryError> {
+    pub fn from_arrays(arrays: &TrajectoryArrays, metadata: Map<String, Value>) -> Result<Self, TrajectoryError> {
         let n = arrays.t.len();
-        if arrays.position.dim() != (n, 3)
-            || arrays.orientation.dim() != (n, 4)
-            || arrays.gripper.len() != n
-        {
+        if arrays.position.dim() != (n, 3) || arrays.orientation.dim() != (n, 4) || arrays.gripper.len() != n {
             return Err(TrajectoryError::new(
                 "arrays",
-                format!(
-                    "shapes t {:?}, position {:?}, orientation {:?}, gripper {:?} do not describe {n} frames",
-                    arrays.t.dim(),
-                    arrays.position.dim(),
-                    arrays.orientation.dim(),
-                    arrays.gripper.dim()
-                ),
+                format!("shapes t {:?}, position {:?}, orientation {:?}, gripper {:?} do not describe {n} frames", arrays.t.dim(), arrays.position.dim(), arrays.orientation.dim(), arrays.gripper.dim()),
             ));
         }
         let frames = (0..n)
@@ -283,9 +231,7 @@ impl Trajectory {
                     t: arrays.t[i],
                     pose: Pose {
                         position: Vector3::new(p[0], p[1], p[2]),
-                        orientation: UnitQuaternion::from_quaternion(Quaternion::new(
-                            q[0], q[1], q[2], q[3],
-                        )),
+                        orientation: UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3])),
                     },
                     gripper: arrays.gripper[i],
                 }
@@ -308,14 +254,8 @@ impl Trajectory {
 fn check_finite(location: &str, values: &[f64]) -> Result<(), TrajectoryError> {
     match values.iter().position(|v| !v.is_finite()) {
         None => Ok(()),
-        Some(k) if values.len() == 1 => Err(TrajectoryError::new(
-            location,
-            format!("{} is not a finite number", values[k]),
-        )),
-        Some(k) => Err(TrajectoryError::new(
-            format!("{location}[{k}]"),
-            format!("{} is not a finite number", values[k]),
-        )),
+        Some(k) if values.len() == 1 => Err(TrajectoryError::new(location, format!("{} is not a finite number", values[k]))),
+        Some(k) => Err(TrajectoryError::new(format!("{location}[{k}]"), format!("{} is not a finite number", values[k]))),
     }
 }
 
@@ -324,24 +264,13 @@ fn check_finite(location: &str, values: &[f64]) -> Result<(), TrajectoryError> {
 fn parse_error(text: &str, err: serde_path_to_error::Error<serde_json::Error>) -> TrajectoryError {
     let path = err.path().to_string();
     let inner = err.into_inner();
-    let location = if path.is_empty() || path == "." {
-        "file".to_owned()
-    } else {
-        path
-    };
+    let location = if path.is_empty() || path == "." { "file".to_owned() } else { path };
     if inner.is_syntax() || inner.is_eof() {
         let token = token_at(text, inner.line(), inner.column());
-        if let Some(bad) = ["NaN", "-NaN", "Infinity", "-Infinity", "inf", "-inf", "nan"]
-            .iter()
-            .find(|t| token.starts_with(**t))
-        {
+        if let Some(bad) = ["NaN", "-NaN", "Infinity", "-Infinity", "inf", "-inf", "nan"].iter().find(|t| token.starts_with(**t)) {
             return TrajectoryError::new(
                 location,
-                format!(
-                    "non-finite number `{bad}` at line {} column {}; trajectory files must hold finite numbers",
-                    inner.line(),
-                    inner.column()
-                ),
+                format!("non-finite number `{bad}` at line {} column {}; trajectory files must hold finite numbers", inner.line(), inner.column()),
             );
         }
         return TrajectoryError::new("file", format!("not valid JSON: {inner}"));
@@ -352,9 +281,7 @@ fn parse_error(text: &str, err: serde_path_to_error::Error<serde_json::Error>) -
 /// The token around (1-based line, 1-based column), where serde_json stopped; it may stop
 /// inside the token, so back up to its first character.
 fn token_at(text: &str, line: usize, column: usize) -> &str {
-    let Some(line_text) = text.lines().nth(line.saturating_sub(1)) else {
-        return "";
-    };
+    let Some(line_text) = text.lines().nth(line.saturating_sub(1)) else { return "" };
     let bytes = line_text.as_bytes();
     let mut start = column.saturating_sub(1).min(bytes.len());
     while start > 0 && (bytes[start - 1].is_ascii_alphanumeric() || bytes[start - 1] == b'-') {
@@ -368,18 +295,12 @@ mod tests {
     use super::*;
 
     fn frame_json(t: f64) -> String {
-        format!(
-            r#"{{"t": {t}, "position": [0.1, 0.2, 0.3], "orientation": [1, 0, 0, 0], "gripper": 1}}"#
-        )
+        format!(r#"{{"t": {t}, "position": [0.1, 0.2, 0.3], "orientation": [1, 0, 0, 0], "gripper": 1}}"#)
     }
 
     #[test]
     fn parses_and_keeps_metadata() {
-        let text = format!(
-            r#"{{"fps": 10, "frames": [{}, {}], "task": "wall_avoidance"}}"#,
-            frame_json(0.0),
-            frame_json(0.1)
-        );
+        let text = format!(r#"{{"fps": 10, "frames": [{}, {}], "task": "wall_avoidance"}}"#, frame_json(0.0), frame_json(0.1));
         let trajectory = Trajectory::from_json_str(&text).unwrap();
         assert_eq!(trajectory.frames.len(), 2);
         assert_eq!(trajectory.metadata["task"], "wall_avoidance");

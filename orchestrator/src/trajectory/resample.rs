@@ -20,47 +20,25 @@ const GRID_SLACK: f64 = 1e-6;
 /// Resamples `trajectory` onto `target`'s grid. Metadata is kept.
 ///
 /// Errors: fewer than two frames, a non-positive or non-finite fps, fewer than two steps.
-pub fn resample(
-    trajectory: &Trajectory,
-    target: ResampleTarget,
-) -> Result<Trajectory, TrajectoryError> {
+pub fn resample(trajectory: &Trajectory, target: ResampleTarget) -> Result<Trajectory, TrajectoryError> {
     if trajectory.frames.len() < 2 {
-        return Err(TrajectoryError::new(
-            "frames",
-            "resampling needs at least two frames",
-        ));
+        return Err(TrajectoryError::new("frames", "resampling needs at least two frames"));
     }
     let (start, duration) = (trajectory.start(), trajectory.duration());
     let (fps, times): (f64, Vec<f64>) = match target {
         ResampleTarget::Fps(fps) => {
             if !(fps.is_finite() && fps > 0.0) {
-                return Err(TrajectoryError::new(
-                    "--fps",
-                    format!("must be a finite number > 0, got {fps}"),
-                ));
+                return Err(TrajectoryError::new("--fps", format!("must be a finite number > 0, got {fps}")));
             }
             let count = (duration * fps + GRID_SLACK).floor() as usize + 1;
-            (
-                fps,
-                (0..count)
-                    .map(|k| (start + k as f64 / fps).min(start + duration))
-                    .collect(),
-            )
+            (fps, (0..count).map(|k| (start + k as f64 / fps).min(start + duration)).collect())
         }
         ResampleTarget::Steps(steps) => {
             if steps < 2 {
-                return Err(TrajectoryError::new(
-                    "--steps",
-                    format!("must be at least 2, got {steps}"),
-                ));
+                return Err(TrajectoryError::new("--steps", format!("must be at least 2, got {steps}")));
             }
             let last = (steps - 1) as f64;
-            (
-                (steps - 1) as f64 / duration,
-                (0..steps)
-                    .map(|k| start + duration * k as f64 / last)
-                    .collect(),
-            )
+            ((steps - 1) as f64 / duration, (0..steps).map(|k| start + duration * k as f64 / last).collect())
         }
     };
     let frames = times.iter().map(|&t| sample(trajectory, t)).collect();
@@ -76,10 +54,7 @@ pub fn sample(trajectory: &Trajectory, t: f64) -> Frame {
         return Frame { t, ..frames[0] };
     }
     if after == frames.len() {
-        return Frame {
-            t,
-            ..frames[frames.len() - 1]
-        };
+        return Frame { t, ..frames[frames.len() - 1] };
     }
     let (a, b) = (&frames[after - 1], &frames[after]);
     let s = (t - a.t) / (b.t - a.t);

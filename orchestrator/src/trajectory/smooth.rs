@@ -26,10 +26,7 @@ fn kernel(dt: f64, half: f64) -> f64 {
 /// gripper values and metadata are kept.
 pub fn smooth(trajectory: &Trajectory, sigma_s: f64) -> Result<Trajectory, TrajectoryError> {
     if !(sigma_s.is_finite() && sigma_s > 0.0) {
-        return Err(TrajectoryError::new(
-            "--sigma",
-            format!("must be a finite number of seconds > 0, got {sigma_s}"),
-        ));
+        return Err(TrajectoryError::new("--sigma", format!("must be a finite number of seconds > 0, got {sigma_s}")));
     }
     let reach = SUPPORT_SIGMAS * sigma_s;
     let padded = reflect_ends(&trajectory.frames, reach);
@@ -41,8 +38,7 @@ pub fn smooth(trajectory: &Trajectory, sigma_s: f64) -> Result<Trajectory, Traje
             // Near an end of a short trajectory the padding may not reach a full window; a
             // window kept symmetric about the frame keeps the odd reflection exact.
             let half = reach.min(frame.t - padded_start).min(padded_end - frame.t);
-            let window = &padded[padded.partition_point(|o| o.t < frame.t - half)
-                ..padded.partition_point(|o| o.t <= frame.t + half)];
+            let window = &padded[padded.partition_point(|o| o.t < frame.t - half)..padded.partition_point(|o| o.t <= frame.t + half)];
             let mut weight_sum = 0.0;
             let mut position = Vector3::zeros();
             let mut tangent = Vector3::zeros();
@@ -50,8 +46,7 @@ pub fn smooth(trajectory: &Trajectory, sigma_s: f64) -> Result<Trajectory, Traje
                 let weight = kernel((other.t - frame.t) / sigma_s, half / sigma_s);
                 weight_sum += weight;
                 position += other.pose.position * weight;
-                tangent +=
-                    so3::to_tangent(&other.pose.orientation, &frame.pose.orientation) * weight;
+                tangent += so3::to_tangent(&other.pose.orientation, &frame.pose.orientation) * weight;
             }
             if weight_sum == 0.0 {
                 return *frame; // a window too narrow to hold any neighbour (one frame)
@@ -59,10 +54,7 @@ pub fn smooth(trajectory: &Trajectory, sigma_s: f64) -> Result<Trajectory, Traje
             Frame {
                 pose: Pose {
                     position: position / weight_sum,
-                    orientation: so3::from_tangent(
-                        &(tangent / weight_sum),
-                        &frame.pose.orientation,
-                    ),
+                    orientation: so3::from_tangent(&(tangent / weight_sum), &frame.pose.orientation),
                 },
                 ..*frame
             }
@@ -83,20 +75,10 @@ fn reflect_ends(frames: &[Frame], reach: f64) -> Vec<Frame> {
         gripper: other.gripper,
     };
     let (first, last) = (&frames[0], &frames[frames.len() - 1]);
-    let mut padded: Vec<Frame> = frames[1..]
-        .iter()
-        .take_while(|f| f.t - first.t <= reach)
-        .map(|f| mirror(first, f))
-        .collect();
+    let mut padded: Vec<Frame> = frames[1..].iter().take_while(|f| f.t - first.t <= reach).map(|f| mirror(first, f)).collect();
     padded.reverse();
     padded.extend_from_slice(frames);
-    padded.extend(
-        frames[..frames.len() - 1]
-            .iter()
-            .rev()
-            .take_while(|f| last.t - f.t <= reach)
-            .map(|f| mirror(last, f)),
-    );
+    padded.extend(frames[..frames.len() - 1].iter().rev().take_while(|f| last.t - f.t <= reach).map(|f| mirror(last, f)));
     padded
 }
 

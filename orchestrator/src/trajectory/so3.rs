@@ -15,11 +15,7 @@ pub fn exp(rotation_vector: &Vector3<f64>) -> UnitQuaternion<f64> {
     let angle = rotation_vector.norm();
     let half = 0.5 * angle;
     // sin(angle/2)/angle, with its Taylor series near zero.
-    let scale = if angle < SMALL_ANGLE {
-        0.5 - angle * angle / 48.0
-    } else {
-        half.sin() / angle
-    };
+    let scale = if angle < SMALL_ANGLE { 0.5 - angle * angle / 48.0 } else { half.sin() / angle };
     let v = rotation_vector * scale;
     UnitQuaternion::new_unchecked(Quaternion::new(half.cos(), v.x, v.y, v.z))
 }
@@ -28,11 +24,7 @@ pub fn exp(rotation_vector: &Vector3<f64>) -> UnitQuaternion<f64> {
 /// give the same vector).
 pub fn log(rotation: &UnitQuaternion<f64>) -> Vector3<f64> {
     let q = rotation.quaternion();
-    let (w, v) = if q.w < 0.0 {
-        (-q.w, -q.imag())
-    } else {
-        (q.w, q.imag())
-    };
+    let (w, v) = if q.w < 0.0 { (-q.w, -q.imag()) } else { (q.w, q.imag()) };
     let sin_half = v.norm();
     if sin_half < SMALL_ANGLE {
         // angle = 2 asin(|v|) ~ 2|v|; dividing by w keeps precision as w -> 1.
@@ -49,10 +41,7 @@ pub fn to_tangent(rotation: &UnitQuaternion<f64>, reference: &UnitQuaternion<f64
 }
 
 /// Inverse of [`to_tangent`]: reference * exp(tangent).
-pub fn from_tangent(
-    tangent: &Vector3<f64>,
-    reference: &UnitQuaternion<f64>,
-) -> UnitQuaternion<f64> {
+pub fn from_tangent(tangent: &Vector3<f64>, reference: &UnitQuaternion<f64>) -> UnitQuaternion<f64> {
     reference * exp(tangent)
 }
 
@@ -102,9 +91,7 @@ mod tests {
     fn slerp_takes_the_short_way() {
         let a = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.1);
         // Same rotation as angle 0.3 but with the opposite quaternion sign.
-        let b = UnitQuaternion::new_unchecked(
-            -UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3).into_inner(),
-        );
+        let b = UnitQuaternion::new_unchecked(-UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3).into_inner());
         let mid = slerp(&a, &b, 0.5);
         assert!((log(&mid) - Vector3::new(0.0, 0.0, 0.2)).norm() < 1e-12);
     }

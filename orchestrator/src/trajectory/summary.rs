@@ -36,8 +36,7 @@ pub struct Summary {
 /// Computes the [`Summary`] of a validated trajectory.
 pub fn summarize(trajectory: &Trajectory) -> Summary {
     let frames = &trajectory.frames;
-    let (mut path, mut max_speed, mut rotation, mut max_angular) =
-        (0.0_f64, 0.0_f64, 0.0_f64, 0.0_f64);
+    let (mut path, mut max_speed, mut rotation, mut max_angular) = (0.0_f64, 0.0_f64, 0.0_f64, 0.0_f64);
     let (mut closes, mut opens) = (Vec::new(), Vec::new());
     for pair in frames.windows(2) {
         let (a, b) = (&pair[0], &pair[1]);
@@ -48,10 +47,7 @@ pub fn summarize(trajectory: &Trajectory) -> Summary {
         rotation += turn;
         max_speed = max_speed.max(step / dt);
         max_angular = max_angular.max(turn / dt);
-        match (
-            a.gripper >= GRIPPER_THRESHOLD,
-            b.gripper >= GRIPPER_THRESHOLD,
-        ) {
+        match (a.gripper >= GRIPPER_THRESHOLD, b.gripper >= GRIPPER_THRESHOLD) {
             (true, false) => closes.push(b.t),
             (false, true) => opens.push(b.t),
             _ => {}
@@ -67,11 +63,7 @@ pub fn summarize(trajectory: &Trajectory) -> Summary {
     Summary {
         frames: frames.len(),
         fps: trajectory.fps,
-        measured_fps: if frames.len() > 1 {
-            (frames.len() - 1) as f64 / duration
-        } else {
-            0.0
-        },
+        measured_fps: if frames.len() > 1 { (frames.len() - 1) as f64 / duration } else { 0.0 },
         duration_s: duration,
         path_length_m: path,
         max_speed_m_per_s: max_speed,
@@ -88,44 +80,17 @@ pub fn summarize(trajectory: &Trajectory) -> Summary {
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let xyz = |p: &[f64; 3]| format!("({:.4}, {:.4}, {:.4})", p[0], p[1], p[2]);
-        let times = |ts: &[f64]| {
-            if ts.is_empty() {
-                "never".to_owned()
-            } else {
-                ts.iter()
-                    .map(|t| format!("{t:.3} s"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            }
-        };
-        writeln!(
-            f,
-            "frames          {} ({} Hz nominal, {:.3} Hz measured)",
-            self.frames, self.fps, self.measured_fps
-        )?;
+        let times = |ts: &[f64]| if ts.is_empty() { "never".to_owned() } else { ts.iter().map(|t| format!("{t:.3} s")).collect::<Vec<_>>().join(", ") };
+        writeln!(f, "frames          {} ({} Hz nominal, {:.3} Hz measured)", self.frames, self.fps, self.measured_fps)?;
         writeln!(f, "duration        {:.3} s", self.duration_s)?;
         writeln!(f, "path length     {:.4} m", self.path_length_m)?;
         writeln!(f, "max speed       {:.4} m/s", self.max_speed_m_per_s)?;
-        writeln!(
-            f,
-            "rotation        {:.4} rad ({:.1} deg)",
-            self.rotation_rad,
-            self.rotation_rad.to_degrees()
-        )?;
-        writeln!(
-            f,
-            "max ang. speed  {:.4} rad/s",
-            self.max_angular_speed_rad_per_s
-        )?;
+        writeln!(f, "rotation        {:.4} rad ({:.1} deg)", self.rotation_rad, self.rotation_rad.to_degrees())?;
+        writeln!(f, "max ang. speed  {:.4} rad/s", self.max_angular_speed_rad_per_s)?;
         writeln!(f, "gripper closes  {}", times(&self.gripper_closes_at_s))?;
         writeln!(f, "gripper opens   {}", times(&self.gripper_opens_at_s))?;
         writeln!(f, "start position  {} m", xyz(&self.start_position_m))?;
         writeln!(f, "end position    {} m", xyz(&self.end_position_m))?;
-        write!(
-            f,
-            "bounds          {} .. {} m",
-            xyz(&self.bounds_m[0]),
-            xyz(&self.bounds_m[1])
-        )
+        write!(f, "bounds          {} .. {} m", xyz(&self.bounds_m[0]), xyz(&self.bounds_m[1]))
     }
 }
