@@ -2,17 +2,12 @@
 //! and `cnfmp doctor` starting the real embedded interpreter on the project venv.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 use serde_json::{Value, json};
 
-fn cnfmp(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cnfmp")).args(args).output().expect("the cnfmp binary runs")
-}
-
-fn stderr(output: &Output) -> String {
-    String::from_utf8_lossy(&output.stderr).into_owned()
-}
+mod common;
+use common::{arg, cnfmp, stderr};
 
 /// A 2 s, 10 Hz trajectory turning about z, closing the gripper at 1 s.
 fn sample_trajectory() -> Value {
@@ -30,10 +25,6 @@ fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     let path = dir.join(name);
     std::fs::write(&path, text).unwrap();
     path
-}
-
-fn arg(path: &Path) -> &str {
-    path.to_str().unwrap()
 }
 
 #[test]

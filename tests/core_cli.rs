@@ -3,24 +3,13 @@
 //! scene, a two-scene evaluation, and the bad inputs that must exit with code 2.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use serde_json::Value;
 
-fn cnfmp(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cnfmp"))
-        .args(args)
-        .output()
-        .expect("the cnfmp binary runs")
-}
+mod common;
+use common::{arg, cnfmp, stderr};
 
-fn stderr(output: &Output) -> String {
-    String::from_utf8_lossy(&output.stderr).into_owned()
-}
-
-fn arg(path: &Path) -> &str {
-    path.to_str().unwrap()
-}
 
 fn assert_bad_input(output: &Output, needle: &str) {
     assert_eq!(output.status.code(), Some(2), "{}", stderr(output));

@@ -2,21 +2,12 @@
 //! interpreter and MuJoCo.
 
 use std::path::Path;
-use std::process::{Command, Output};
 
 use serde_json::Value;
 
-fn cnfmp(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cnfmp")).args(args).output().expect("the cnfmp binary runs")
-}
+mod common;
+use common::{arg, cnfmp, stderr};
 
-fn stderr(output: &Output) -> String {
-    String::from_utf8_lossy(&output.stderr).into_owned()
-}
-
-fn arg(path: &Path) -> &str {
-    path.to_str().unwrap()
-}
 
 #[test]
 fn render_writes_image_masks_and_objects_once() {

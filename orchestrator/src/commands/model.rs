@@ -174,14 +174,6 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
     let image = read_bytes(&args.image, "image")?;
     let masks = read_bytes(&args.masks, "masks")?;
     let objects = read_objects(&args.objects)?;
-    for (file, what) in [("config.json", "config"), ("model.safetensors", "weights")] {
-        if !args.model.join(file).is_file() {
-            return Err(Failure::BadInput(format!(
-                "{} is not a model directory: its {what} ({file}) is missing",
-                args.model.display()
-            )));
-        }
-    }
     let prediction = Bridge::start_default()?.core_predict(&args.model, image, masks, objects)?;
     let trajectory = trajectory_of(&prediction)?;
     write_atomically(&args.out, trajectory.to_json_string().as_bytes())?;

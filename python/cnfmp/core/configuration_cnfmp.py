@@ -134,6 +134,21 @@ class CnfmpConfig:
 
     model_type: str = MODEL_TYPE
 
+    @classmethod
+    def from_file(cls, path: str) -> "CnfmpConfig":
+        """A config from a JSON file of config fields; InputError naming the file when it is
+        unreadable, not a JSON object, or has unknown or invalid fields."""
+        try:
+            with open(path, encoding="utf-8") as f:
+                values = json.load(f)
+        except OSError as err:
+            raise InputError(f"cannot read config {path}: {err.strerror}") from err
+        except ValueError as err:
+            raise InputError(f"config {path} is not valid JSON: {err}") from err
+        if not isinstance(values, dict):
+            raise InputError(f"config {path}: expected a JSON object of config fields")
+        return cls.from_dict(values, source=path)
+
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2) + "\n"
 

@@ -86,7 +86,7 @@ class Predictor:
         Returns ``{"trajectory": decode_trajectory dict, "weights": (N, K) simplex weights,
         "present": (N,) bool, "object_mse": per slot reconstruction MSE (None when absent),
         "object_psnr_db", "scene_psnr_db", "mask_iou": per slot IoU of the learned mask with the
-        coarse mask, "gates": (T, N), "seconds": {"infer", "decode"}}``.
+        coarse mask, "reconstruction", "learned_masks", "seconds": {"infer", "decode"}}``.
         """
         c = self.config
         inputs = core_data.scene_inputs(image, labels, c.num_objects, c.field_resolution, c.mask_dilation)
@@ -109,13 +109,12 @@ class Predictor:
         with torch.no_grad():
             latents = self.model.latents(weights[None], present[None])
             outputs = self.model.motion(self.times, latents)[0].numpy().astype(np.float64)
-            gates = self.model.gates(self.times).numpy()
         trajectory = decode_trajectory(outputs, c)
         decoded = time.perf_counter()
         fit = self.scene_fit(latents, colour, present, rgb, inputs["masks"])
         return {"trajectory": trajectory, "weights": weights.numpy(), "present": inputs["present"],
                 "object_mse": mse, "object_psnr_db": [None if m is None else psnr_db(m) for m in mse],
-                **fit, "gates": gates,
+                **fit,
                 "seconds": {"infer": inferred - started, "decode": decoded - inferred}}
 
     def scene_fit(self, latents, colour, present, rgb, coarse_masks) -> dict:

@@ -315,32 +315,18 @@ def save_model(model: CnfmpModel, out_dir: str) -> None:
     save_file({k: v.detach().contiguous() for k, v in model.state_dict().items()}, os.path.join(out_dir, WEIGHTS_FILE))
 
 
-def read_config(model_dir: str) -> dict:
-    """The raw config.json of a model directory; InputError when it is missing or unreadable."""
-    import json
-
-    path = os.path.join(model_dir, CONFIG_FILE)
-    if not os.path.isdir(model_dir):
-        raise InputError(f"model directory {model_dir} does not exist")
-    if not os.path.isfile(path):
-        raise InputError(f"{model_dir} is not a model directory: {CONFIG_FILE} is missing")
-    try:
-        with open(path, encoding="utf-8") as f:
-            values = json.load(f)
-    except (OSError, ValueError) as err:
-        raise InputError(f"{path}: not a readable JSON config: {err}") from err
-    if not isinstance(values, dict):
-        raise InputError(f"{path}: expected a JSON object")
-    return values
-
-
 def load_model(model_dir: str) -> CnfmpModel:
     """Rebuilds the model from config.json and loads model.safetensors (no code is executed
     from the directory). InputError for a missing or mismatched file."""
     from safetensors import SafetensorError
     from safetensors.torch import load_file
 
-    config = CnfmpConfig.from_dict(read_config(model_dir), source=os.path.join(model_dir, CONFIG_FILE))
+    if not os.path.isdir(model_dir):
+        raise InputError(f"model directory {model_dir} does not exist")
+    config_path = os.path.join(model_dir, CONFIG_FILE)
+    if not os.path.isfile(config_path):
+        raise InputError(f"{model_dir} is not a model directory: {CONFIG_FILE} is missing")
+    config = CnfmpConfig.from_file(config_path)
     weights_path = os.path.join(model_dir, WEIGHTS_FILE)
     if not os.path.isfile(weights_path):
         raise InputError(f"{model_dir} is not a complete model directory: {WEIGHTS_FILE} is missing")

@@ -173,21 +173,6 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
     return model, summary
 
 
-def load_config_file(path: str | None) -> CnfmpConfig:
-    if path is None:
-        return CnfmpConfig()
-    try:
-        with open(path, encoding="utf-8") as f:
-            values = json.load(f)
-    except OSError as err:
-        raise InputError(f"cannot read config {path}: {err.strerror}") from err
-    except ValueError as err:
-        raise InputError(f"config {path} is not valid JSON: {err}") from err
-    if not isinstance(values, dict):
-        raise InputError(f"config {path}: expected a JSON object of config fields")
-    return CnfmpConfig.from_dict(values, source=path)
-
-
 def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps: int | None = None,
           seed: int | None = None, command: str = "", progress: bool = True) -> str:
     """Trains on the LeRobot dataset at `dataset_dir` and writes the model directory `out_dir`
@@ -197,7 +182,7 @@ def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps:
     """
     if os.path.exists(out_dir):
         raise InputError(f"{out_dir} already exists; models are never overwritten, choose a new --out")
-    config = load_config_file(config_path)
+    config = CnfmpConfig() if config_path is None else CnfmpConfig.from_file(config_path)
     overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
     config = dataclasses.replace(config, **overrides)
     config.check()
