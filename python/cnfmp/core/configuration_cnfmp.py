@@ -56,6 +56,10 @@ class CnfmpConfig:
     #: Positional-encoding octaves of the appearance and background fields; annealed in
     #: coarse-to-fine over the first `anneal_fraction` of training.
     appearance_octaves: int = 6
+    #: Positional-encoding octaves of the background field (annealed like the appearance).
+    #: Fewer than the objects': a detailed background paints the average of the objects'
+    #: positions into the table and steals their pixels from the experts.
+    background_octaves: int = 4
     #: Fraction of the training steps over which the appearance octaves are switched on.
     anneal_fraction: float = 0.4
     #: Weight of the Lipschitz penalty (product of the learned per-layer bounds) on the
@@ -73,7 +77,19 @@ class CnfmpConfig:
     #: Weight of a weak mask prior: cross-entropy between the soft competition and the
     #: coarse labels at the sampled pixels. The sampling bias alone lets an expert paint
     #: other objects in the composite; this small term keeps each expert on its own object.
-    mask_prior_weight: float = 0.0
+    mask_prior_weight: float = 0.05
+
+    #: Weight of the centre prior: squared distance (image coordinates in [-1, 1]) between each
+    #: object's template centre c(z_i) and the centroid of its coarse mask, in training and
+    #: in inference. The coarse masks roughly localise the objects (paper §II); this term
+    #: anchors the translation part of every latent to that location.
+    centre_prior_weight: float = 1.0
+
+    #: Weight of a pull of each object's simplex weights towards the simplex centre (squared
+    #: distance), in training and in inference alike. Directions of the latent that the image
+    #: does not determine then rest at the same place for demonstrations and for new scenes,
+    #: so the motion cannot read anything from them that inference would not reproduce.
+    weight_prior_weight: float = 1e-3
 
     #: Weight of an entropy bonus on the demonstrations' simplex weights: it keeps the
     #: demonstrations inside their simplices, so the endpoints span beyond the observed
@@ -81,8 +97,11 @@ class CnfmpConfig:
     simplex_entropy_weight: float = 0.0
 
     # ---- motion ----
-    #: Positional-encoding octaves of normalised time t in [0, 1].
-    time_octaves: int = 7
+    #: Time basis of the motion: normalised Gaussian bumps spread evenly over the trajectory,
+    #: this many per second of duration (at least 4 in all), each as wide as their spacing
+    #: (the basis of classic movement primitives). Smooth by construction, so the motion
+    #: cannot wiggle between the 10 Hz demonstration samples it is fit to.
+    time_basis_per_second: float = 5.0
     #: Width of the trajectory generator's hidden layers.
     generator_width: int = 128
     #: Hidden layers of the trajectory generator.
@@ -96,6 +115,11 @@ class CnfmpConfig:
     #: False trains the motion on the latents the scene alone explains, so nothing the image
     #: cannot show steers the motion.
     motion_shapes_latents: bool = True
+    #: Steps of the motion refit that ends training: every demonstration's latents are
+    #: inferred from its image exactly as for a new scene, and the gating and trajectory
+    #: generator alone are fit to them, so the motion reads the latents inference produces
+    #: rather than the ones optimised jointly with the scene. 0 skips it.
+    motion_refit_steps: int = 500
     #: Time samples per demonstration per training step.
     time_samples: int = 64
     #: Loss weights: trajectory position, rotation (rad), gripper.
@@ -129,6 +153,10 @@ class CnfmpConfig:
     refine_learning_rate: float = 0.2
     #: Most pixels of an object's dilated mask used by inference.
     inference_pixels: int = 256
+    #: Inference searches each object's simplex enlarged about its centre by this fraction,
+    #: so a scene slightly outside the span of the demonstrations stays reachable
+    #: (weights down to -margin / num_endpoints; 0 keeps the plain simplex).
+    simplex_margin: float = 0.5
     #: Rate (Hz) of the decoded trajectory.
     output_fps: float = 50.0
 

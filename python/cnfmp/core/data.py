@@ -102,7 +102,8 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
 
     Returns ``{"rgb": (R, R, 3) float32 in [0, 1], "masks": (N, R, R) bool coarse masks,
     "dilated": (N, R, R) bool, "colour": (N, 3) float32 median colour of each mask,
-    "present": (N,) bool}``. InputError for mismatched sizes or labels beyond the slots.
+    "centre": (N, 2) float32 centroid of each mask in image coordinates ([-1, 1], x right,
+    y down; 0 when absent), "present": (N,) bool}``. InputError for mismatched sizes or labels beyond the slots.
     """
     import cv2
 
@@ -117,9 +118,12 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
         raise InputError(f"the masks use label {highest} but the model has {num_objects} object slot(s)")
     rgb = cv2.resize(image, (resolution, resolution), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
     kernel = np.ones((2 * dilation + 1, 2 * dilation + 1), np.uint8)
-    masks, dilated, colours = [], [], []
+    masks, dilated, colours, centres = [], [], [], []
+    height, width = labels.shape
     for k in range(1, num_objects + 1):
         full = labels == k
+        rows, cols = np.nonzero(full)
+        centres.append([(cols.mean() + 0.5) / width * 2 - 1, (rows.mean() + 0.5) / height * 2 - 1] if full.any() else [0.0, 0.0])
         # Coverage >= 1/4 of a field pixel counts, so thin or far objects keep their mask.
         coverage = cv2.resize(full.astype(np.float32), (resolution, resolution), interpolation=cv2.INTER_AREA)
         small = coverage >= 0.25
@@ -127,4 +131,5 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
         dilated.append(cv2.dilate(small.astype(np.uint8), kernel) > 0)
         colours.append(np.median(image[full], axis=0) / 255.0 if full.any() else np.zeros(3))
     return {"rgb": rgb, "masks": np.stack(masks), "dilated": np.stack(dilated),
-            "colour": np.asarray(colours, np.float32), "present": np.array([m.any() for m in masks])}
+            "colour": np.asarray(colours, np.float32), "centre": np.asarray(centres, np.float32),
+            "present": np.array([m.any() for m in masks])}

@@ -38,16 +38,28 @@ class Predictor:
             self.bg_rgb, self.bg_logit = model.background_terms(self.coords[None])
             self.times = torch.from_numpy(output_times(self.config)).float()
 
-    def _object_loss(self, slot: int, logits: torch.Tensor, coords, colour, bg_rgb, bg_logit, target) -> torch.Tensor:
-        """Per-candidate MSE (C,) of slot `slot`'s expert image for simplex logits (C, K)."""
+    def weights_of(self, logits: torch.Tensor) -> torch.Tensor:
+        """Search logits (..., K) -> weights on the endpoints, a point of the simplex enlarged
+        by the config's margin: ``(1 + m) softmax(logits) - m / K`` (sums to one)."""
+        m, k = self.config.simplex_margin, logits.shape[-1]
+        return (1.0 + m) * torch.softmax(logits, dim=-1) - m / k
+
+    def _object_loss(self, slot: int, logits: torch.Tensor, coords, colour, bg_rgb, bg_logit, target,
+                     centre) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-candidate objective (C,) of slot `slot` for search logits (C, K): the expert
+        image's MSE plus the weighted centre prior; also returns the MSE alone."""
         c = logits.shape[0]
-        latent = self.model.object_latent(slot, torch.softmax(logits, dim=-1))
+        weights = self.weights_of(logits)
+        latent = self.model.object_latent(slot, weights)
         rgb, logit, _ = self.model.objects[slot](coords.expand(c, -1, -1), latent, colour.expand(c, -1))
         image = self.model.expert_image(rgb, logit, bg_rgb, bg_logit)
-        return ((image - target) ** 2).mean(dim=(1, 2))
+        mse = ((image - target) ** 2).mean(dim=(1, 2))
+        centre_err = ((self.model.objects[slot].object_centre(latent) - centre) ** 2).sum(dim=-1)
+        spread = ((weights - 1.0 / weights.shape[-1]) ** 2).sum(dim=-1)
+        return mse + self.config.centre_prior_weight * centre_err + self.config.weight_prior_weight * spread, mse
 
     def infer_weights(self, slot: int, pixels: np.ndarray, rgb: torch.Tensor, colour: torch.Tensor,
-                      rng: np.random.Generator) -> tuple[torch.Tensor, float]:
+                      centre: torch.Tensor, rng: np.random.Generator) -> tuple[torch.Tensor, float]:
         """Simplex weights (K,) of slot `slot` fit to the image `rgb` (R*R, 3) at flat pixel
         indices `pixels`; returns them with the final reconstruction MSE."""
         c = self.config
@@ -55,27 +67,44 @@ class Predictor:
         idx = torch.from_numpy(pixels)
         coords, target = self.coords[idx][None], rgb[idx][None]
         bg_rgb, bg_logit = self.bg_rgb[:, idx], self.bg_logit[:, idx]
-        k = c.num_endpoints
+        k, m = c.num_endpoints, c.simplex_margin
+        # Every training demonstration's weights and the endpoints themselves, mapped into the
+        # search's enlarged simplex, then random points of the enlarged simplex.
+        known = torch.cat([torch.softmax(self.model.demo_logits[:, slot], dim=-1), torch.eye(k)])
         candidates = torch.cat([
-            self.model.demo_logits[:, slot],
-            torch.log(torch.eye(k) * 0.97 + 0.03 / k),
+            torch.log((known + m / k) / (1.0 + m) + 1e-6),
             torch.log(torch.from_numpy(rng.dirichlet(np.ones(k), size=c.search_candidates)).float() + 1e-4),
         ])
         few = slice(0, min(c.search_pixels, len(pixels)))  # pixels are a random subset already
         with torch.no_grad():
-            losses = self._object_loss(slot, candidates, coords[:, few], colour[None], bg_rgb[:, few], bg_logit[:, few],
-                                       target[:, few])
+            losses, _ = self._object_loss(slot, candidates, coords[:, few], colour[None], bg_rgb[:, few],
+                                          bg_logit[:, few], target[:, few], centre)
         starts = candidates[torch.argsort(losses)[: c.search_starts]].detach().clone().requires_grad_(True)
         optimiser = torch.optim.Adam([starts], lr=c.refine_learning_rate)
         for _ in range(c.refine_steps):
-            loss = self._object_loss(slot, starts, coords, colour[None], bg_rgb, bg_logit, target)
+            loss, _ = self._object_loss(slot, starts, coords, colour[None], bg_rgb, bg_logit, target, centre)
             optimiser.zero_grad(set_to_none=True)
             loss.sum().backward()
             optimiser.step()
         with torch.no_grad():
-            final = self._object_loss(slot, starts, coords, colour[None], bg_rgb, bg_logit, target)
+            final, mse = self._object_loss(slot, starts, coords, colour[None], bg_rgb, bg_logit, target, centre)
             best = int(torch.argmin(final))
-            return torch.softmax(starts[best], dim=-1).detach(), float(final[best])
+            return self.weights_of(starts[best]).detach(), float(mse[best])
+
+    def infer_scene(self, inputs: dict, seed: int = 0) -> tuple[torch.Tensor, list[float | None]]:
+        """Simplex weights (N, K) of every object of a scene (:func:`cnfmp.core.data.scene_inputs`)
+        and each present object's reconstruction MSE (None for an absent slot)."""
+        c = self.config
+        rgb = torch.from_numpy(inputs["rgb"].reshape(-1, 3))
+        colour, centres = torch.from_numpy(inputs["colour"]), torch.from_numpy(inputs["centre"])
+        rng = np.random.default_rng(seed)
+        weights = torch.full((c.num_objects, c.num_endpoints), 1.0 / c.num_endpoints)
+        mse: list[float | None] = [None] * c.num_objects
+        for slot in range(c.num_objects):
+            if inputs["present"][slot]:
+                pixels = np.flatnonzero(inputs["dilated"][slot].reshape(-1))
+                weights[slot], mse[slot] = self.infer_weights(slot, pixels, rgb, colour[slot], centres[slot], rng)
+        return weights, mse
 
     def predict(self, image: np.ndarray, labels: np.ndarray, seed: int = 0) -> dict:
         """Trajectory for a scene.
@@ -97,14 +126,8 @@ class Predictor:
         rgb = torch.from_numpy(inputs["rgb"].reshape(-1, 3))
         colour = torch.from_numpy(inputs["colour"])
         present = torch.from_numpy(inputs["present"])
-        rng = np.random.default_rng(seed)
         started = time.perf_counter()
-        weights = torch.full((c.num_objects, c.num_endpoints), 1.0 / c.num_endpoints)
-        mse: list[float | None] = [None] * c.num_objects
-        for slot in range(c.num_objects):
-            if inputs["present"][slot]:
-                pixels = np.flatnonzero(inputs["dilated"][slot].reshape(-1))
-                weights[slot], mse[slot] = self.infer_weights(slot, pixels, rgb, colour[slot], rng)
+        weights, mse = self.infer_scene(inputs, seed)
         inferred = time.perf_counter()
         with torch.no_grad():
             latents = self.model.latents(weights[None], present[None])

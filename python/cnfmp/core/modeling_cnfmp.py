@@ -35,6 +35,11 @@ from cnfmp.errors import InputError
 
 #: Outputs of the trajectory generator: position (3), rotation vector (3), gripper (1).
 MOTION_DIM = 7
+#: Largest entry of an object deformation's linear part A(z) (turns up to ~50 deg, scale
+#: changes up to ~+-50%), and largest residual displacement (image coordinates in [-1, 1]:
+#: 0.15 is about 5 px at 64 px).
+LINEAR_BOUND = 0.8
+RESIDUAL_BOUND = 0.15
 
 
 def fourier_features(x: torch.Tensor, octaves: int, progress: float | None = None) -> torch.Tensor:
@@ -56,6 +61,21 @@ def fourier_features(x: torch.Tensor, octaves: int, progress: float | None = Non
 
 def encoded_size(dim: int, octaves: int) -> int:
     return dim * (1 + 2 * octaves)
+
+
+def time_basis_size(config: CnfmpConfig) -> int:
+    """Number of time basis functions: `time_basis_per_second` per second of the trajectory."""
+    return max(4, int(round(config.time_basis_per_second * config.duration_s)))
+
+
+def time_basis(t: torch.Tensor, config: CnfmpConfig) -> torch.Tensor:
+    """Normalised Gaussian basis of normalised time: (T,) in [0, 1] -> (T, M), rows summing
+    to one; centres evenly spaced over [0, 1], widths equal to the spacing."""
+    m = time_basis_size(config)
+    centres = torch.linspace(0.0, 1.0, m, dtype=t.dtype)
+    width = 1.0 / (m - 1)
+    bumps = torch.exp(-0.5 * ((t[:, None] - centres) / width) ** 2)
+    return bumps / bumps.sum(dim=-1, keepdim=True)
 
 
 class LipschitzLinear(nn.Module):
@@ -148,34 +168,63 @@ class AffineFilmGenerator(nn.Module):
 
 
 class ObjectField(nn.Module):
-    """One spatial expert: deformation Delta(x | z) and appearance F(x - Delta | z, colour).
-    The deformation is a translation linear in z (objects mostly move) plus a low-frequency
-    FiLM residual for everything else (turns, heights, slopes).
+    """One spatial expert: a latent-conditioned deformation and a fixed appearance template.
+
+    Canonical coordinates ``x_i = (I + A(z)) (x - c(z)) + r(x - c(z) | z)``, i.e.
+    ``Delta(x | z) = x - x_i``: c(z) is the object's centre in the image (linear in z, so a
+    convex combination of latents moves the object along the line between their centres),
+    A(z) a small linear map for turns and scale (linear in z), r a low-frequency FiLM
+    residual for what neither captures (slopes, heights, perspective). The appearance F and
+    mask logit depend on x_i and the object's observed colour only, never on z (paper eq. 2):
+    every difference between scenes has to be explained by moving the template, which is
+    what makes the latent geometric and lets it generalise from a few demonstrations.
 
     forward(coords (B, P, 2), latent (B, D), colour (B, 3), progress) ->
-    (rgb (B, P, 3) in [0, 1], mask logit (B, P), deformation (B, P, 2)).
+    (rgb (B, P, 3) in [0, 1], mask logit (B, P), canonical coords (B, P, 2)).
     """
 
     def __init__(self, config: CnfmpConfig):
         super().__init__()
         self.config = config
-        self.translation = LipschitzLinear(config.latent_dim, 2)
+        self.centre = LipschitzLinear(config.latent_dim, 2)
+        self.perspective = nn.Parameter(torch.zeros(config.latent_dim))
+        self.linear = nn.Linear(config.latent_dim, 4)
         self.deformation = FilmMLP(encoded_size(2, config.deformation_octaves), config.latent_dim, config.field_width,
                                    config.field_layers, 2, lipschitz=True)
-        self.appearance = FilmMLP(encoded_size(2, config.appearance_octaves), config.latent_dim + 3,
-                                  config.field_width, config.field_layers, 4)
-        with torch.no_grad():  # identity deformation at the start
+        self.appearance = FilmMLP(encoded_size(2, config.appearance_octaves), 3, config.field_width,
+                                  config.field_layers, 4)
+        with torch.no_grad():  # start as a pure translation
+            self.linear.weight.mul_(0.1)
+            self.linear.bias.zero_()
             self.deformation.out.weight.zero_()
             self.deformation.out.bias.zero_()
-            self.translation.linear.bias.zero_()
+            self.centre.linear.bias.zero_()
+
+    def object_centre(self, latent: torch.Tensor) -> torch.Tensor:
+        """The object's centre c(z) in image coordinates: (..., D) -> (..., 2).
+
+        A projective function of the latent, ``c(z) = (W z + b) exp(-g . z)``, the way a
+        camera sees positions on the table: the latent can then hold the object's position
+        linearly in the world, which is what the (affine) motion needs, while the image
+        position follows the perspective."""
+        return self.centre(latent) * torch.exp(-(latent @ self.perspective))[..., None]
+
+    def canonical(self, coords: torch.Tensor, latent: torch.Tensor) -> torch.Tensor:
+        """Image coordinates (B, P, 2) -> the template's coordinates x_i (B, P, 2).
+
+        The linear part and the residual are bounded (entries of A within +-LINEAR_BOUND,
+        residual within +-RESIDUAL_BOUND): unbounded, the residual learns to undo the
+        translation and the template stops following the object."""
+        local = coords - self.object_centre(latent)[:, None, :]
+        matrix = torch.eye(2, dtype=coords.dtype) + LINEAR_BOUND * torch.tanh(self.linear(latent).view(-1, 2, 2))
+        warped = torch.einsum("bij,bpj->bpi", matrix, local)
+        residual = self.deformation(fourier_features(local, self.config.deformation_octaves), latent)
+        return warped + RESIDUAL_BOUND * torch.tanh(residual / RESIDUAL_BOUND)
 
     def forward(self, coords, latent, colour, progress=None):
-        offset = (self.translation(latent)[:, None, :]
-                  + self.deformation(fourier_features(coords, self.config.deformation_octaves), latent))
-        canonical = coords - offset
-        out = self.appearance(fourier_features(canonical, self.config.appearance_octaves, progress),
-                              torch.cat([latent, colour], dim=-1))
-        return torch.sigmoid(out[..., :3]), out[..., 3], offset
+        canonical = self.canonical(coords, latent)
+        out = self.appearance(fourier_features(canonical, self.config.appearance_octaves, progress), colour)
+        return torch.sigmoid(out[..., :3]), out[..., 3], canonical
 
 
 class CnfmpModel(nn.Module):
@@ -188,14 +237,14 @@ class CnfmpModel(nn.Module):
         self.config = config
         n, k, d = config.num_objects, config.num_endpoints, config.latent_dim
         self.objects = nn.ModuleList([ObjectField(config) for _ in range(n)])
-        self.background = plain_mlp(encoded_size(2, config.appearance_octaves), config.field_width,
+        self.background = plain_mlp(encoded_size(2, config.background_octaves), config.field_width,
                                     config.field_layers, 4)
         self.endpoints = nn.Parameter(0.5 * torch.randn(n, k, d))
         self.absent = nn.Parameter(0.5 * torch.randn(n, d))
         #: Simplex logits of each training demonstration (B_train, N, K); kept in the model
         #: file as the first candidates of inference's search.
         self.demo_logits = nn.Parameter(0.3 * torch.randn(num_demos, n, k))
-        time_in = encoded_size(1, config.time_octaves)
+        time_in = time_basis_size(config)
         self.gating = plain_mlp(time_in, config.gating_width, 2, n)
         self.generator = AffineFilmGenerator(time_in, d, config.generator_width, config.generator_layers, MOTION_DIM)
 
@@ -205,13 +254,17 @@ class CnfmpModel(nn.Module):
         z = torch.einsum("bnk,nkd->bnd", weights, self.endpoints)
         return torch.where(present[..., None], z, self.absent[None].expand_as(z))
 
+    def object_centres(self, latents: torch.Tensor) -> torch.Tensor:
+        """Object latents (B, N, D) -> template centres c(z_i) (B, N, 2), image coordinates."""
+        return torch.stack([field.object_centre(latents[:, k]) for k, field in enumerate(self.objects)], dim=1)
+
     def object_latent(self, slot: int, weights: torch.Tensor) -> torch.Tensor:
         """Weights (C, K) on slot `slot`'s simplex -> latents (C, D)."""
         return weights @ self.endpoints[slot]
 
     # ---- scene ----
     def background_terms(self, coords: torch.Tensor, progress=None) -> tuple[torch.Tensor, torch.Tensor]:
-        out = self.background(fourier_features(coords, self.config.appearance_octaves, progress))
+        out = self.background(fourier_features(coords, self.config.background_octaves, progress))
         return torch.sigmoid(out[..., :3]), out[..., 3]
 
     def scene(self, coords, latents, colours, present, progress=None) -> dict:
@@ -219,7 +272,7 @@ class CnfmpModel(nn.Module):
 
         Returns ``{"rgb": (B, P, 3) composite, "object_rgb": (B, N, P, 3), "logits":
         (B, N + 1, P) object logits then background (absent objects at -inf), "masks":
-        (B, N + 1, P) softmax of the logits, "deformation": (B, N, P, 2)}``.
+        (B, N + 1, P) softmax of the logits, "canonical": (B, N, P, 2) template coordinates}``.
         """
         rgbs, logits, offsets = [], [], []
         for slot, field in enumerate(self.objects):
@@ -232,7 +285,7 @@ class CnfmpModel(nn.Module):
         masks = torch.softmax(all_logits, dim=1)
         all_rgb = torch.stack(rgbs + [bg_rgb], dim=1)
         return {"rgb": (masks[..., None] * all_rgb).sum(dim=1), "object_rgb": torch.stack(rgbs, dim=1),
-                "logits": all_logits, "masks": masks, "deformation": torch.stack(offsets, dim=1),
+                "logits": all_logits, "masks": masks, "canonical": torch.stack(offsets, dim=1),
                 "background_rgb": bg_rgb}
 
     @staticmethod
@@ -246,7 +299,7 @@ class CnfmpModel(nn.Module):
     def gates(self, t: torch.Tensor) -> torch.Tensor:
         """Temporal gating weights w(t): (T,) -> (T, N), rows summing to one (constant and
         equal without temporal gating)."""
-        scores = self.gating(fourier_features(t[:, None], self.config.time_octaves))
+        scores = self.gating(time_basis(t, self.config))
         if not self.config.temporal_gating:
             scores = torch.zeros_like(scores)
         return torch.softmax(scores, dim=-1)
@@ -257,10 +310,10 @@ class CnfmpModel(nn.Module):
         if self.training and not self.config.motion_shapes_latents:
             latents = latents.detach()
         z_t = torch.einsum("tn,bnd->btd", self.gates(t), latents)  # (B, T, D)
-        return self.generator(fourier_features(t[:, None], self.config.time_octaves), z_t)
+        return self.generator(time_basis(t, self.config), z_t)
 
     def lipschitz_penalty(self) -> torch.Tensor:
-        bounds = [field.deformation.lipschitz_bound() * field.translation.bound() for field in self.objects]
+        bounds = [field.deformation.lipschitz_bound() * field.centre.bound() for field in self.objects]
         return torch.stack(bounds).sum() + self.generator.lipschitz_bound()
 
     def parameter_count(self, include_demos: bool = False) -> int:

@@ -55,6 +55,7 @@ class TrainingSet:
         self.rgb = torch.from_numpy(np.stack([s["rgb"].reshape(-1, 3) for s in scenes]))  # (B, R*R, 3)
         self.colour = torch.from_numpy(np.stack([s["colour"] for s in scenes]))  # (B, N, 3)
         self.present = torch.from_numpy(np.stack([s["present"] for s in scenes]))  # (B, N)
+        self.centre = torch.from_numpy(np.stack([s["centre"] for s in scenes]))  # (B, N, 2)
         # Coarse label per field pixel (0 background, k object k), for the weak mask prior.
         labels = np.zeros((len(scenes), res * res), np.int64)
         for b, s in enumerate(scenes):
@@ -152,7 +153,12 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
         t = frames.float() / (data.frames - 1)
         motion = motion_loss(model, model.motion(t, latents), data.targets[bt][:, frames])
         lipschitz = model.lipschitz_penalty()
+        centre_err = ((model.object_centres(latents) - data.centre[bt]) ** 2).sum(dim=-1)
+        centre_prior = (centre_err * present).sum() / present.sum().clamp(min=1)
+        spread = ((weights - 1.0 / config.num_endpoints) ** 2).sum(dim=-1)
+        weight_prior = (spread * present).sum() / present.sum().clamp(min=1)
         loss = (config.image_weight * (composite + local) + motion + config.mask_prior_weight * mask_prior
+                + config.centre_prior_weight * centre_prior + config.weight_prior_weight * weight_prior
                 + config.lipschitz_weight * lipschitz - config.simplex_entropy_weight * entropy)
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
@@ -165,12 +171,53 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
             eta = elapsed / (step + 1) * (config.steps - step - 1)
             log(f"step {step + 1}/{config.steps}  image {recent[0]:.5f}  object {recent[1]:.5f}  "
                 f"motion {recent[2]:.5f}  lipschitz {lipschitz.item():.3g}  {elapsed:.0f}s elapsed, ~{eta:.0f}s left")
+    if config.motion_refit_steps:
+        refit = refit_motion(model, data, demos, log)
+        history[-1][2] = refit
     model.eval()
     final = np.mean(history[-max(1, config.steps // 20):], axis=0)
+    final[2] = history[-1][2] if config.motion_refit_steps else final[2]
     summary = {"steps": config.steps, "demos": len(data), "seconds": round(time.monotonic() - started, 1),
                "final_losses": {"image_mse": float(final[0]), "object_mse": float(final[1]), "motion_mse": float(final[2])},
                "parameters": model.parameter_count()}
     return model, summary
+
+
+def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstrations, log=None) -> float:
+    """Fits the gating and the trajectory generator to the latents that inference finds for
+    every demonstration's image (the scene networks and endpoints stay as trained); returns
+    the final motion MSE. Training and prediction then feed the motion the same kind of latent."""
+    from cnfmp.core.inference import Predictor
+
+    config = model.config
+    predictor = Predictor(model)  # freezes every parameter
+    weights = []
+    for b in range(len(data)):
+        inputs = core_data.scene_inputs(demos.images[b], demos.masks[b], config.num_objects,
+                                        config.field_resolution, config.mask_dilation)
+        weights.append(predictor.infer_scene(inputs, seed=config.seed + b)[0])
+    with torch.no_grad():
+        latents = model.latents(torch.stack(weights), data.present)
+    motion_params = list(model.gating.parameters()) + list(model.generator.parameters())
+    for p in motion_params:
+        p.requires_grad_(True)
+    model.train()
+    optimiser = torch.optim.Adam(motion_params, lr=config.learning_rate)
+    steps = config.motion_refit_steps
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 0.5 * (1 + np.cos(np.pi * min(step / steps, 1.0))))
+    t = torch.arange(data.frames, dtype=torch.float32) / (data.frames - 1)
+    for step in range(steps):
+        loss = motion_loss(model, model.motion(t, latents), data.targets)
+        penalty = config.lipschitz_weight * model.generator.lipschitz_bound()
+        optimiser.zero_grad(set_to_none=True)
+        (loss + penalty).backward()
+        optimiser.step()
+        schedule.step()
+        if log and (step % max(1, steps // 5) == 0 or step == steps - 1):
+            log(f"motion refit {step + 1}/{steps}  motion {loss.item():.5f}")
+    for p in model.parameters():
+        p.requires_grad_(False)
+    return float(loss.item())
 
 
 def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps: int | None = None,
