@@ -23,7 +23,7 @@ from cnfmp.errors import InputError
 
 TINY = dict(field_resolution=32, latent_dim=8, num_endpoints=3, field_width=32, field_layers=2,
             appearance_octaves=4, pixels_per_object=64, uniform_pixels=64, mask_dilation=2,
-            generator_width=48, generator_layers=2, time_samples=32,
+            time_samples=32,
             search_candidates=16, search_starts=2, refine_steps=10, inference_pixels=128, output_fps=10.0,
             motion_refit_steps=100)
 
@@ -57,7 +57,7 @@ def test_demonstrations_read_back_with_first_frame_and_trajectory(demos):
 
 
 def test_a_few_steps_lower_the_losses(demos):
-    config = CnfmpConfig(**TINY, steps=60, seed=0)
+    config = CnfmpConfig(**TINY, steps=150, seed=0)
     losses = []
     training.train_model(demos, config, log=lambda line: losses.append(line))
     steps = [line for line in losses if line.startswith("step ")]

@@ -102,10 +102,9 @@ class CnfmpConfig:
     #: (the basis of classic movement primitives). Smooth by construction, so the motion
     #: cannot wiggle between the 10 Hz demonstration samples it is fit to.
     time_basis_per_second: float = 5.0
-    #: Width of the trajectory generator's hidden layers.
-    generator_width: int = 128
-    #: Hidden layers of the trajectory generator.
-    generator_layers: int = 3
+    #: Weight of the penalty on the generator's latent weights (mean square): a ridge that
+    #: keeps the motion from reading more out of the latent than the demonstrations support.
+    generator_weight_decay: float = 1e-3
     #: Width of the relevance-score network s_i(t) (temporal gating).
     gating_width: int = 32
     #: Whether the temporal gating is learned; False gives the ablation with constant, equal
@@ -197,7 +196,7 @@ class CnfmpConfig:
     def check(self, source: str = "config") -> None:
         """InputError for values no model can be built with."""
         positive = ["field_resolution", "latent_dim", "num_endpoints", "field_width", "field_layers",
-                    "pixels_per_object", "uniform_pixels", "generator_width", "generator_layers",
+                    "pixels_per_object", "uniform_pixels",
                     "gating_width", "time_samples", "steps", "batch_demos", "search_candidates",
                     "search_starts", "search_pixels", "inference_pixels"]
         for name in positive:

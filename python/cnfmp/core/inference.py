@@ -58,15 +58,16 @@ class Predictor:
         spread = ((weights - 1.0 / weights.shape[-1]) ** 2).sum(dim=-1)
         return mse + self.config.centre_prior_weight * centre_err + self.config.weight_prior_weight * spread, mse
 
-    def infer_weights(self, slot: int, pixels: np.ndarray, rgb: torch.Tensor, colour: torch.Tensor,
-                      centre: torch.Tensor, rng: np.random.Generator) -> tuple[torch.Tensor, float]:
-        """Simplex weights (K,) of slot `slot` fit to the image `rgb` (R*R, 3) at flat pixel
-        indices `pixels`; returns them with the final reconstruction MSE."""
+    def _search(self, slot: int, pixels: np.ndarray, rgb: torch.Tensor, colour: torch.Tensor, centre: torch.Tensor,
+                rng: np.random.Generator) -> tuple[torch.Tensor, tuple]:
+        """The cheap search of slot `slot`: scores every candidate on a few of its mask's
+        pixels and returns the best `search_starts` logits (S, K) with the fitting inputs
+        (coords, colour, background rgb and logit, target, centre) of the refinement."""
         c = self.config
         pixels = rng.permutation(pixels)[: c.inference_pixels]
         idx = torch.from_numpy(pixels)
-        coords, target = self.coords[idx][None], rgb[idx][None]
-        bg_rgb, bg_logit = self.bg_rgb[:, idx], self.bg_logit[:, idx]
+        inputs = (self.coords[idx][None], colour[None], self.bg_rgb[:, idx], self.bg_logit[:, idx], rgb[idx][None],
+                  centre)
         k, m = c.num_endpoints, c.simplex_margin
         # Every training demonstration's weights and the endpoints themselves, mapped into the
         # search's enlarged simplex, then random points of the enlarged simplex.
@@ -75,35 +76,42 @@ class Predictor:
             torch.log((known + m / k) / (1.0 + m) + 1e-6),
             torch.log(torch.from_numpy(rng.dirichlet(np.ones(k), size=c.search_candidates)).float() + 1e-4),
         ])
-        few = slice(0, min(c.search_pixels, len(pixels)))  # pixels are a random subset already
+        few = min(c.search_pixels, len(pixels))  # pixels are a random subset already
+        coords, colour_, bg_rgb, bg_logit, target, centre = inputs
         with torch.no_grad():
-            losses, _ = self._object_loss(slot, candidates, coords[:, few], colour[None], bg_rgb[:, few],
-                                          bg_logit[:, few], target[:, few], centre)
-        starts = candidates[torch.argsort(losses)[: c.search_starts]].detach().clone().requires_grad_(True)
-        optimiser = torch.optim.Adam([starts], lr=c.refine_learning_rate)
-        for _ in range(c.refine_steps):
-            loss, _ = self._object_loss(slot, starts, coords, colour[None], bg_rgb, bg_logit, target, centre)
-            optimiser.zero_grad(set_to_none=True)
-            loss.sum().backward()
-            optimiser.step()
-        with torch.no_grad():
-            final, mse = self._object_loss(slot, starts, coords, colour[None], bg_rgb, bg_logit, target, centre)
-            best = int(torch.argmin(final))
-            return self.weights_of(starts[best]).detach(), float(mse[best])
+            losses, _ = self._object_loss(slot, candidates, coords[:, :few], colour_, bg_rgb[:, :few],
+                                          bg_logit[:, :few], target[:, :few], centre)
+        return candidates[torch.argsort(losses)[: c.search_starts]].clone(), inputs
 
     def infer_scene(self, inputs: dict, seed: int = 0) -> tuple[torch.Tensor, list[float | None]]:
         """Simplex weights (N, K) of every object of a scene (:func:`cnfmp.core.data.scene_inputs`)
-        and each present object's reconstruction MSE (None for an absent slot)."""
+        and each present object's reconstruction MSE (None for an absent slot).
+
+        A cheap search per object, then the best starts of every object are refined together
+        by Adam (one loop for the whole scene; the objects' objectives are independent)."""
         c = self.config
         rgb = torch.from_numpy(inputs["rgb"].reshape(-1, 3))
         colour, centres = torch.from_numpy(inputs["colour"]), torch.from_numpy(inputs["centre"])
         rng = np.random.default_rng(seed)
         weights = torch.full((c.num_objects, c.num_endpoints), 1.0 / c.num_endpoints)
         mse: list[float | None] = [None] * c.num_objects
-        for slot in range(c.num_objects):
-            if inputs["present"][slot]:
-                pixels = np.flatnonzero(inputs["dilated"][slot].reshape(-1))
-                weights[slot], mse[slot] = self.infer_weights(slot, pixels, rgb, colour[slot], centres[slot], rng)
+        slots = [slot for slot in range(c.num_objects) if inputs["present"][slot]]
+        if not slots:
+            return weights, mse
+        searched = {slot: self._search(slot, np.flatnonzero(inputs["dilated"][slot].reshape(-1)), rgb, colour[slot],
+                                       centres[slot], rng) for slot in slots}
+        starts = {slot: searched[slot][0].requires_grad_(True) for slot in slots}
+        optimiser = torch.optim.Adam(list(starts.values()), lr=c.refine_learning_rate)
+        for _ in range(c.refine_steps):
+            loss = sum(self._object_loss(slot, starts[slot], *searched[slot][1])[0].sum() for slot in slots)
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+        with torch.no_grad():
+            for slot in slots:
+                final, errors = self._object_loss(slot, starts[slot], *searched[slot][1])
+                best = int(torch.argmin(final))
+                weights[slot], mse[slot] = self.weights_of(starts[slot][best]), float(errors[best])
         return weights, mse
 
     def predict(self, image: np.ndarray, labels: np.ndarray, seed: int = 0) -> dict:

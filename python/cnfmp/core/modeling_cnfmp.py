@@ -139,32 +139,30 @@ def plain_mlp(in_dim: int, width: int, layers: int, out_dim: int) -> nn.Sequenti
     return nn.Sequential(*parts, nn.Linear(width, out_dim))
 
 
-class AffineFilmGenerator(nn.Module):
-    """Trajectory generator G(t | z): time features h(t) from a coordinate MLP, modulated by
-    FiLM maps that are linear in the latent, ``G = W_o ((1 + Gamma z) * h(t) + B z) + b``.
+class BasisGenerator(nn.Module):
+    """Trajectory generator G(t | z): a movement primitive whose basis weights are FiLM-
+    modulated by the latent, ``G(t | z) = sum_m phi_m(t) (a_m + B_m z)``: phi the Gaussian
+    time basis, a_m (out,) the mean weights, B_m (out, D) the latent's shift of basis m.
 
-    For every t the output is affine in z, hence in each object's simplex weights: the
-    motion then interpolates between demonstrations the way the latents do, which is what
-    lets a handful of demonstrations generalise. forward(t_features (T, F), z (B, T, D)) ->
-    (B, T, out_dim).
+    For every t the output is affine in z, hence in each object's simplex weights, so the
+    motion interpolates between demonstrations the way the latents do; and z acts only
+    through the time-local basis, so a latent moves the motion where it matters and leaves
+    the fixed start pose alone. forward(basis (T, M), z (B, T, D)) -> (B, T, out_dim).
     """
 
-    def __init__(self, in_dim: int, latent_dim: int, width: int, layers: int, out_dim: int):
+    def __init__(self, basis_size: int, latent_dim: int, out_dim: int):
         super().__init__()
-        self.features = nn.Sequential(plain_mlp(in_dim, width, layers - 1, width), nn.ReLU())
-        self.gamma = LipschitzLinear(latent_dim, width)
-        self.beta = LipschitzLinear(latent_dim, width)
-        self.out = nn.Linear(width, out_dim)
-        with torch.no_grad():
-            self.gamma.linear.weight.mul_(0.1)
-            self.gamma.linear.bias.zero_()
+        self.mean = nn.Parameter(torch.zeros(basis_size, out_dim))
+        self.latent_weights = nn.Parameter(0.01 * torch.randn(basis_size, out_dim, latent_dim))
 
-    def lipschitz_bound(self) -> torch.Tensor:
-        return self.gamma.bound() + self.beta.bound()
+    def sensitivity(self) -> torch.Tensor:
+        """Mean squared latent weight: the penalty that keeps the motion's response to the
+        latent no larger than the demonstrations need."""
+        return (self.latent_weights ** 2).mean()
 
-    def forward(self, t_features: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        h = self.features(t_features)[None]  # (1, T, W)
-        return self.out((1.0 + self.gamma(z)) * h + self.beta(z))
+    def forward(self, basis: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        shift = torch.einsum("tm,mod,btd->bto", basis, self.latent_weights, z)
+        return (basis @ self.mean)[None] + shift
 
 
 class ObjectField(nn.Module):
@@ -246,7 +244,7 @@ class CnfmpModel(nn.Module):
         self.demo_logits = nn.Parameter(0.3 * torch.randn(num_demos, n, k))
         time_in = time_basis_size(config)
         self.gating = plain_mlp(time_in, config.gating_width, 2, n)
-        self.generator = AffineFilmGenerator(time_in, d, config.generator_width, config.generator_layers, MOTION_DIM)
+        self.generator = BasisGenerator(time_in, d, MOTION_DIM)
 
     # ---- latents ----
     def latents(self, weights: torch.Tensor, present: torch.Tensor) -> torch.Tensor:
@@ -314,7 +312,7 @@ class CnfmpModel(nn.Module):
 
     def lipschitz_penalty(self) -> torch.Tensor:
         bounds = [field.deformation.lipschitz_bound() * field.centre.bound() for field in self.objects]
-        return torch.stack(bounds).sum() + self.generator.lipschitz_bound()
+        return torch.stack(bounds).sum()
 
     def parameter_count(self, include_demos: bool = False) -> int:
         return sum(p.numel() for name, p in self.named_parameters() if include_demos or name != "demo_logits")

@@ -21,7 +21,8 @@ import torch
 
 from cnfmp.core import data as core_data
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
-from cnfmp.core.modeling_cnfmp import (CARD_FILE, CnfmpModel, pixel_coords, save_model, trajectory_targets)
+from cnfmp.core.modeling_cnfmp import (CARD_FILE, CnfmpModel, pixel_coords, save_model, time_basis,
+                                       trajectory_targets)
 from cnfmp.errors import InputError
 
 
@@ -123,6 +124,9 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
     rng = np.random.default_rng(config.seed)
     data = TrainingSet(demos, config)
     model = CnfmpModel(config, num_demos=len(data))
+    with torch.no_grad():  # the generator starts at the demonstrations' mean motion
+        basis = time_basis(torch.arange(data.frames, dtype=torch.float32) / (data.frames - 1), config)
+        model.generator.mean.copy_(torch.linalg.lstsq(basis, data.targets.mean(dim=0)).solution)
     latent_params = [model.endpoints, model.absent, model.demo_logits]
     net_params = [p for name, p in model.named_parameters() if name not in ("endpoints", "absent", "demo_logits")]
     optimiser = torch.optim.Adam([{"params": net_params, "lr": config.learning_rate},
@@ -159,6 +163,7 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
         weight_prior = (spread * present).sum() / present.sum().clamp(min=1)
         loss = (config.image_weight * (composite + local) + motion + config.mask_prior_weight * mask_prior
                 + config.centre_prior_weight * centre_prior + config.weight_prior_weight * weight_prior
+                + config.generator_weight_decay * model.generator.sensitivity()
                 + config.lipschitz_weight * lipschitz - config.simplex_entropy_weight * entropy)
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
@@ -208,7 +213,7 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     t = torch.arange(data.frames, dtype=torch.float32) / (data.frames - 1)
     for step in range(steps):
         loss = motion_loss(model, model.motion(t, latents), data.targets)
-        penalty = config.lipschitz_weight * model.generator.lipschitz_bound()
+        penalty = config.generator_weight_decay * model.generator.sensitivity()
         optimiser.zero_grad(set_to_none=True)
         (loss + penalty).backward()
         optimiser.step()
