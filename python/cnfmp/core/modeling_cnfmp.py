@@ -10,11 +10,16 @@ Latent relabeling: z_i is a convex combination of `num_endpoints` learned endpoi
 object i; a demonstration (or a new scene) is a point on each object's simplex.
 
 Motion: ``z(t) = sum_i w_i(t) z_i`` with ``w(t) = softmax(s(t))`` from a learned relevance
-network, and a FiLM-conditioned generator ``G(t | z(t))`` outputs normalised position,
-rotation (tangent-space axis-angle at the config's reference orientation) and gripper.
+network, and a generator ``G(t | z(t))`` (a movement primitive on a Gaussian time basis whose
+basis weights the latent shifts, FiLM-style) outputs normalised position, rotation
+(tangent-space axis-angle at the config's reference orientation) and gripper.
 
-Appearance is also conditioned on each object's observed colour (the median colour under its
-coarse mask), so one expert covers a red, green or blue cube; the latent then carries geometry.
+Each appearance field F_i sees only its template coordinates x_i and the object's observed
+colour (the median colour under its coarse mask), never z_i: one expert covers a red, green
+or blue cube, and every geometric difference between scenes must go through the deformation,
+so the latent carries geometry. The deformation's translation is anchored to the centroid of
+the coarse mask (the centre prior), and is a projective function of the latent, as the camera
+sees the table.
 
 Coordinates are image coordinates in [-1, 1]^2 (x right, y down); time is normalised to [0, 1].
 """
