@@ -55,8 +55,8 @@ class Predictor:
         image = self.model.expert_image(rgb, logit, bg_rgb, bg_logit)
         mse = ((image - target) ** 2).mean(dim=(1, 2))
         centre_err = ((self.model.objects[slot].object_centre(latent) - centre) ** 2).sum(dim=-1)
-        spread = ((weights - 1.0 / weights.shape[-1]) ** 2).sum(dim=-1)
-        return mse + self.config.centre_prior_weight * centre_err + self.config.weight_prior_weight * spread, mse
+        return (mse + self.config.centre_prior_weight * centre_err
+                + self.config.weight_prior_weight * self.model.weight_spread(weights), mse)
 
     def _search(self, slot: int, pixels: np.ndarray, rgb: torch.Tensor, colour: torch.Tensor, centre: torch.Tensor,
                 rng: np.random.Generator) -> tuple[torch.Tensor, tuple]:
@@ -64,10 +64,9 @@ class Predictor:
         pixels and returns the best `search_starts` logits (S, K) with the fitting inputs
         (coords, colour, background rgb and logit, target, centre) of the refinement."""
         c = self.config
-        pixels = rng.permutation(pixels)[: c.inference_pixels]
-        idx = torch.from_numpy(pixels)
-        inputs = (self.coords[idx][None], colour[None], self.bg_rgb[:, idx], self.bg_logit[:, idx], rgb[idx][None],
-                  centre)
+        idx = torch.from_numpy(rng.permutation(pixels)[: c.inference_pixels])
+        fitting = (self.coords[idx][None], colour[None], self.bg_rgb[:, idx], self.bg_logit[:, idx], rgb[idx][None],
+                   centre)
         k, m = c.num_endpoints, c.simplex_margin
         # Every training demonstration's weights and the endpoints themselves, mapped into the
         # search's enlarged simplex, then random points of the enlarged simplex.
@@ -76,12 +75,13 @@ class Predictor:
             torch.log((known + m / k) / (1.0 + m) + 1e-6),
             torch.log(torch.from_numpy(rng.dirichlet(np.ones(k), size=c.search_candidates)).float() + 1e-4),
         ])
-        few = min(c.search_pixels, len(pixels))  # pixels are a random subset already
-        coords, colour_, bg_rgb, bg_logit, target, centre = inputs
+        # The pixels are a random subset already: their first few are a random sample too.
+        few = slice(0, c.search_pixels)
+        coords, _, bg_rgb, bg_logit, target, _ = fitting
         with torch.no_grad():
-            losses, _ = self._object_loss(slot, candidates, coords[:, :few], colour_, bg_rgb[:, :few],
-                                          bg_logit[:, :few], target[:, :few], centre)
-        return candidates[torch.argsort(losses)[: c.search_starts]].clone(), inputs
+            losses, _ = self._object_loss(slot, candidates, coords[:, few], colour[None], bg_rgb[:, few],
+                                          bg_logit[:, few], target[:, few], centre)
+        return candidates[torch.argsort(losses)[: c.search_starts]].clone(), fitting
 
     def infer_scene(self, inputs: dict, seed: int = 0) -> tuple[torch.Tensor, list[float | None]]:
         """Simplex weights (N, K) of every object of a scene (:func:`cnfmp.core.data.scene_inputs`)

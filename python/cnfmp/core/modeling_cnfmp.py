@@ -261,6 +261,12 @@ class CnfmpModel(nn.Module):
         """Object latents (B, N, D) -> template centres c(z_i) (B, N, 2), image coordinates."""
         return torch.stack([field.object_centre(latents[:, k]) for k, field in enumerate(self.objects)], dim=1)
 
+    @staticmethod
+    def weight_spread(weights: torch.Tensor) -> torch.Tensor:
+        """Squared distance of simplex weights (..., K) from the simplex centre -> (...,): the
+        weight prior, the same in training and inference."""
+        return ((weights - 1.0 / weights.shape[-1]) ** 2).sum(dim=-1)
+
     def object_latent(self, slot: int, weights: torch.Tensor) -> torch.Tensor:
         """Weights (C, K) on slot `slot`'s simplex -> latents (C, D)."""
         return weights @ self.endpoints[slot]
@@ -277,18 +283,18 @@ class CnfmpModel(nn.Module):
         (B, N + 1, P) object logits then background (absent objects at -inf), "masks":
         (B, N + 1, P) softmax of the logits, "canonical": (B, N, P, 2) template coordinates}``.
         """
-        rgbs, logits, offsets = [], [], []
+        rgbs, logits, canonicals = [], [], []
         for slot, field in enumerate(self.objects):
-            rgb, logit, offset = field(coords, latents[:, slot], colours[:, slot], progress)
+            rgb, logit, canonical = field(coords, latents[:, slot], colours[:, slot], progress)
             rgbs.append(rgb)
             logits.append(torch.where(present[:, slot, None], logit, torch.full_like(logit, -1e4)))
-            offsets.append(offset)
+            canonicals.append(canonical)
         bg_rgb, bg_logit = self.background_terms(coords, progress)
         all_logits = torch.stack(logits + [bg_logit], dim=1)
         masks = torch.softmax(all_logits, dim=1)
         all_rgb = torch.stack(rgbs + [bg_rgb], dim=1)
         return {"rgb": (masks[..., None] * all_rgb).sum(dim=1), "object_rgb": torch.stack(rgbs, dim=1),
-                "logits": all_logits, "masks": masks, "canonical": torch.stack(offsets, dim=1),
+                "logits": all_logits, "masks": masks, "canonical": torch.stack(canonicals, dim=1),
                 "background_rgb": bg_rgb}
 
     @staticmethod

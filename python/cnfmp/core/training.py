@@ -75,6 +75,8 @@ class TrainingSet:
             targets.append(np.concatenate([t, held]))
         self.targets = torch.from_numpy(np.stack(targets).astype(np.float32))  # (B, F, 7)
         self.frames = frames
+        #: Normalised time of every frame (F,).
+        self.times = torch.arange(frames, dtype=torch.float32) / (frames - 1)
 
     def __len__(self) -> int:
         return self.rgb.shape[0]
@@ -125,7 +127,7 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
     data = TrainingSet(demos, config)
     model = CnfmpModel(config, num_demos=len(data))
     with torch.no_grad():  # the generator starts at the demonstrations' mean motion
-        basis = time_basis(torch.arange(data.frames, dtype=torch.float32) / (data.frames - 1), config)
+        basis = time_basis(data.times, config)
         model.generator.mean.copy_(torch.linalg.lstsq(basis, data.targets.mean(dim=0)).solution)
     latent_params = [model.endpoints, model.absent, model.demo_logits]
     net_params = [p for name, p in model.named_parameters() if name not in ("endpoints", "absent", "demo_logits")]
@@ -154,13 +156,11 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
         label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
         mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
         frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
-        t = frames.float() / (data.frames - 1)
-        motion = motion_loss(model, model.motion(t, latents), data.targets[bt][:, frames])
+        motion = motion_loss(model, model.motion(data.times[frames], latents), data.targets[bt][:, frames])
         lipschitz = model.lipschitz_penalty()
         centre_err = ((model.object_centres(latents) - data.centre[bt]) ** 2).sum(dim=-1)
         centre_prior = (centre_err * present).sum() / present.sum().clamp(min=1)
-        spread = ((weights - 1.0 / config.num_endpoints) ** 2).sum(dim=-1)
-        weight_prior = (spread * present).sum() / present.sum().clamp(min=1)
+        weight_prior = (model.weight_spread(weights) * present).sum() / present.sum().clamp(min=1)
         loss = (config.image_weight * (composite + local) + motion + config.mask_prior_weight * mask_prior
                 + config.centre_prior_weight * centre_prior + config.weight_prior_weight * weight_prior
                 + config.generator_weight_decay * model.generator.sensitivity()
@@ -176,12 +176,10 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
             eta = elapsed / (step + 1) * (config.steps - step - 1)
             log(f"step {step + 1}/{config.steps}  image {recent[0]:.5f}  object {recent[1]:.5f}  "
                 f"motion {recent[2]:.5f}  lipschitz {lipschitz.item():.3g}  {elapsed:.0f}s elapsed, ~{eta:.0f}s left")
-    if config.motion_refit_steps:
-        refit = refit_motion(model, data, demos, log)
-        history[-1][2] = refit
     model.eval()
     final = np.mean(history[-max(1, config.steps // 20):], axis=0)
-    final[2] = history[-1][2] if config.motion_refit_steps else final[2]
+    if config.motion_refit_steps:  # the motion the model ships with is the refit one
+        final[2] = refit_motion(model, data, demos, log)
     summary = {"steps": config.steps, "demos": len(data), "seconds": round(time.monotonic() - started, 1),
                "final_losses": {"image_mse": float(final[0]), "object_mse": float(final[1]), "motion_mse": float(final[2])},
                "parameters": model.parameter_count()}
@@ -210,9 +208,8 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     optimiser = torch.optim.Adam(motion_params, lr=config.learning_rate)
     steps = config.motion_refit_steps
     schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 0.5 * (1 + np.cos(np.pi * min(step / steps, 1.0))))
-    t = torch.arange(data.frames, dtype=torch.float32) / (data.frames - 1)
     for step in range(steps):
-        loss = motion_loss(model, model.motion(t, latents), data.targets)
+        loss = motion_loss(model, model.motion(data.times, latents), data.targets)
         penalty = config.generator_weight_decay * model.generator.sensitivity()
         optimiser.zero_grad(set_to_none=True)
         (loss + penalty).backward()
@@ -222,6 +219,7 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
             log(f"motion refit {step + 1}/{steps}  motion {loss.item():.5f}")
     for p in model.parameters():
         p.requires_grad_(False)
+    model.eval()
     return float(loss.item())
 
 
