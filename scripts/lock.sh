@@ -7,6 +7,9 @@ find_python
 find_uv
 resolved=$(mktemp)
 trap 'rm -f "$resolved"' EXIT
+# uv prefers the versions already in its output file: start from the current lock so adding
+# a dependency does not silently upgrade the others.
+[[ -f $lock ]] && cp "$lock" "$resolved"
 "$uv" pip compile "$repo/pyproject.toml" --extra dev --python-version 3.11 \
     --python-platform x86_64-manylinux_2_28 --generate-hashes --no-header --quiet -o "$resolved"
 {

@@ -21,6 +21,12 @@ pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), Failure> {
         .tempfile_in(dir)
         .map_err(|err| fail("create a temporary file beside", err))?;
     temp.write_all(contents).map_err(|err| fail("write", err))?;
+    // tempfile creates 0600 files; outputs are ordinary files others may read.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        temp.as_file().set_permissions(std::fs::Permissions::from_mode(0o644)).map_err(|err| fail("set permissions of", err))?;
+    }
     temp.as_file().sync_all().map_err(|err| fail("flush", err))?;
     temp.persist(path).map_err(|err| fail("replace", err.error))?;
     Ok(())

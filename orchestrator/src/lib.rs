@@ -6,6 +6,9 @@
 //! so integration tests can use it directly.
 
 pub mod commands;
+pub mod convert;
 pub mod failure;
 pub mod files;
+pub mod images;
+pub mod progress;
 pub mod trajectory;

@@ -28,7 +28,7 @@ enum Command {
     /// The MuJoCo benchmark: render scenes, scripted experts, execute and judge trajectories.
     #[command(subcommand)]
     Sim(SimCommand),
-    /// LeRobot datasets: generate demonstrations from the simulator.
+    /// LeRobot datasets: generate demonstrations from the simulator, convert recorded ones, validate.
     #[command(subcommand)]
     Dataset(DatasetCommand),
     /// Train a compositional NF-MP model on a LeRobot dataset (progress on stderr).

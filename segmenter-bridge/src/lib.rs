@@ -18,6 +18,7 @@
 
 mod calls;
 mod core;
+mod dataset;
 mod error;
 mod interpreter;
 mod sim;
@@ -27,6 +28,7 @@ mod worker;
 mod tests;
 
 pub use calls::{ArrayRoundTrip, DoctorCheck, DoctorReport, PythonInfo};
+pub use dataset::{DatasetCheck, DatasetEpisodes, DatasetInspection, Hdf5Demo, Hdf5Listing, InspectedEpisode, SkippedEpisode, StagedWriteReport};
 pub use core::{ModelInfo, ObjectEstimate, Prediction, TrainLosses, TrainReport, TrainRequest};
 pub use error::{BridgeError, PythonException, TRACEBACK_FRAMES};
 pub use interpreter::BridgeConfig;

@@ -4,12 +4,13 @@
 use std::path::Path;
 
 use numpy::ndarray::{Array1, Array2};
-use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::IntoPyArray;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+use crate::dataset::{item, matrix, vector};
 use crate::error::BridgeError;
 use crate::worker::Bridge;
 
@@ -116,19 +117,14 @@ impl Bridge {
             let run = || -> PyResult<(TrajectoryArrays, String)> {
                 let result = py.import("cnfmp.sim.api")?.call_method1("expert", (task, seed))?;
                 let dict = result.cast::<PyDict>()?;
-                let item = |key: &str| -> PyResult<Bound<'_, PyAny>> {
-                    dict.get_item(key)?.ok_or_else(|| pyo3::exceptions::PyKeyError::new_err(key.to_owned()))
-                };
-                let vector = |key: &str| -> PyResult<Array1<f64>> { Ok(item(key)?.extract::<PyReadonlyArray1<f64>>()?.as_array().to_owned()) };
-                let matrix = |key: &str| -> PyResult<Array2<f64>> { Ok(item(key)?.extract::<PyReadonlyArray2<f64>>()?.as_array().to_owned()) };
                 let arrays = TrajectoryArrays {
-                    fps: item("fps")?.extract()?,
-                    t: vector("t")?,
-                    position: matrix("position")?,
-                    orientation: matrix("orientation")?,
-                    gripper: vector("gripper")?,
+                    fps: item(dict, "fps")?.extract()?,
+                    t: vector(dict, "t")?,
+                    position: matrix(dict, "position")?,
+                    orientation: matrix(dict, "orientation")?,
+                    gripper: vector(dict, "gripper")?,
                 };
-                Ok((arrays, item("prompt")?.extract()?))
+                Ok((arrays, item(dict, "prompt")?.extract()?))
             };
             run().map_err(|err| BridgeError::python(py, &err))
         })

@@ -1,4 +1,5 @@
-//! `cnfmp dataset generate`: LeRobot v3.0 datasets of scripted expert demonstrations.
+//! `cnfmp dataset generate | convert | validate`: LeRobot v3.0 datasets of scripted expert
+//! demonstrations, batch conversion of recorded ones, and validation.
 
 use std::path::PathBuf;
 
@@ -6,6 +7,7 @@ use clap::Subcommand;
 use segmenter_bridge::Bridge;
 
 use super::print_stdout;
+use crate::convert::{self, ConvertOptions, Source, Target};
 use crate::failure::Failure;
 
 #[derive(Debug, Subcommand)]
@@ -29,6 +31,40 @@ pub enum DatasetCommand {
         #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
         workers: u32,
     },
+    /// Convert recorded demonstrations into a LeRobot v3.0 dataset (or a dataset back into
+    /// raw episode folders). Resumable: rerun the same command after an interruption.
+    /// The dataset appears at --out only when complete.
+    Convert {
+        /// Source as FORMAT:PATH: `raw:DIR` (one folder per episode, see the README),
+        /// `hdf5:FILE` (robomimic-style), or `lerobot:DIR` (with `--to raw`).
+        #[arg(long = "from", value_name = "FORMAT:PATH", value_parser = clap::value_parser!(Source))]
+        from: Source,
+        /// Output directory; must not exist.
+        #[arg(long)]
+        out: PathBuf,
+        /// Output format.
+        #[arg(long, value_enum, default_value_t = Target::Lerobot)]
+        to: Target,
+        /// Dataset frame rate (Hz); trajectories are resampled to it. Default: the rate
+        /// the first episode records (raw: meta.json or trajectory.json; hdf5: control_freq, else 20).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1000))]
+        fps: Option<u32>,
+        /// Worker threads reading, checking and staging episodes.
+        #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+        workers: u32,
+        /// Stop at the first bad episode instead of skipping and reporting it.
+        #[arg(long)]
+        strict: bool,
+    },
+    /// Check a LeRobot dataset: lerobot's own reader, cnfmp's checks of annotations and
+    /// trajectories, and lerobot-doctor. Exit 0 when every check passes, 2 otherwise.
+    Validate {
+        /// Dataset directory.
+        dir: PathBuf,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 pub fn run(command: DatasetCommand) -> Result<(), Failure> {
@@ -39,6 +75,28 @@ pub fn run(command: DatasetCommand) -> Result<(), Failure> {
             }
             let report = Bridge::start_default()?.dataset_generate(&task, episodes, seed, &out, workers)?;
             print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))?;
+        }
+        DatasetCommand::Convert { from, out, to, fps, workers, strict } => {
+            let options = ConvertOptions { source: from, to, out, fps, workers: workers as usize, strict };
+            let report = convert::convert(&options)?;
+            eprintln!(
+                "converted {} of {} episodes ({} frames at {} fps, {} skipped, {} resumed) into {} in {:.1} s",
+                report.converted, report.episodes, report.frames, report.fps, report.skipped.len(), report.resumed, report.out, report.seconds
+            );
+            print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))?;
+        }
+        DatasetCommand::Validate { dir, json } => {
+            let report = convert::validate::validate(&dir)?;
+            if json {
+                print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))?;
+            } else {
+                let lines: Vec<String> = report.checks.iter().map(|c| format!("{} {}: {}", if c.ok { "PASS" } else { "FAIL" }, c.name, c.detail)).collect();
+                print_stdout(&lines.join("\n"))?;
+            }
+            let failed: Vec<&str> = report.checks.iter().filter(|c| !c.ok).map(|c| c.name.as_str()).collect();
+            if !failed.is_empty() {
+                return Err(Failure::BadInput(format!("{} failed {} check(s): {}", dir.display(), failed.len(), failed.join(", "))));
+            }
         }
     }
     Ok(())

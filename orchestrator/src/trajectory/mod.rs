@@ -6,6 +6,7 @@
 //! plus any other top-level keys (metadata), which are kept as they are.
 
 pub mod compare;
+pub mod csv;
 pub mod resample;
 pub mod smooth;
 pub mod so3;
@@ -215,7 +216,8 @@ impl Trajectory {
         arrays
     }
 
-    /// Builds and validates a trajectory from bridge arrays (quaternions `[w, x, y, z]`).
+    /// Builds and validates a trajectory from bridge arrays (quaternions `[w, x, y, z]`, unit
+    /// within [`QUATERNION_NORM_TOLERANCE`], renormalised).
     pub fn from_arrays(arrays: &TrajectoryArrays, metadata: Map<String, Value>) -> Result<Self, TrajectoryError> {
         let n = arrays.t.len();
         if arrays.position.dim() != (n, 3) || arrays.orientation.dim() != (n, 4) || arrays.gripper.len() != n {
@@ -224,19 +226,26 @@ impl Trajectory {
                 format!("shapes t {:?}, position {:?}, orientation {:?}, gripper {:?} do not describe {n} frames", arrays.t.dim(), arrays.position.dim(), arrays.orientation.dim(), arrays.gripper.dim()),
             ));
         }
-        let frames = (0..n)
-            .map(|i| {
-                let (p, q) = (arrays.position.row(i), arrays.orientation.row(i));
-                Frame {
-                    t: arrays.t[i],
-                    pose: Pose {
-                        position: Vector3::new(p[0], p[1], p[2]),
-                        orientation: UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3])),
-                    },
-                    gripper: arrays.gripper[i],
-                }
-            })
-            .collect();
+        let mut frames = Vec::with_capacity(n);
+        for i in 0..n {
+            let (p, q) = (arrays.position.row(i), arrays.orientation.row(i));
+            let quaternion = Quaternion::new(q[0], q[1], q[2], q[3]);
+            let norm = quaternion.norm();
+            if norm.is_finite() && (norm - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
+                return Err(TrajectoryError::new(
+                    format!("frames[{i}].orientation"),
+                    format!("quaternion [w,x,y,z] = [{}, {}, {}, {}] has norm {norm:.6}, not 1 (tolerance {QUATERNION_NORM_TOLERANCE})", q[0], q[1], q[2], q[3]),
+                ));
+            }
+            frames.push(Frame {
+                t: arrays.t[i],
+                pose: Pose {
+                    position: Vector3::new(p[0], p[1], p[2]),
+                    orientation: UnitQuaternion::from_quaternion(quaternion),
+                },
+                gripper: arrays.gripper[i],
+            });
+        }
         Trajectory::new(arrays.fps, frames, metadata)
     }
 

@@ -1,0 +1,262 @@
+"""LeRobot v3.0 datasets from staged episodes, and back out again (lerobot 0.4.4).
+
+`cnfmp dataset convert` (Rust) stages every source episode first, in parallel: the
+trajectory validated and resampled to the dataset fps, the camera images as RGB PNG files,
+the coarse masks as one grayscale label-map PNG, and an ``episode.json`` describing them.
+This module does the parts that need lerobot:
+
+- :func:`write_staged`: one pass over the staged episodes, in order, writing the dataset with
+  lerobot's own writer (``save_episode`` with a whole-episode buffer whose image entries are
+  the staged PNG paths, so lerobot embeds those files as they are: no image is re-encoded).
+- :func:`export_episode`: one episode of a dataset as a raw episode folder (the inverse).
+- :func:`inspect`: the read-back half of ``cnfmp dataset validate``.
+
+The feature layout is the one :mod:`cnfmp.data.generate` writes, so converted datasets
+train with ``cnfmp train`` like simulated ones.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import numpy as np
+
+from cnfmp.data.generate import IMAGE_KEY, STATE_NAMES
+from cnfmp.errors import InputError
+
+
+def _features(height: int, width: int) -> dict:
+    return {
+        IMAGE_KEY: {"dtype": "image", "shape": (height, width, 3), "names": ["height", "width", "channels"]},
+        "observation.state": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
+        "action": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
+        "annotation.masks": {"dtype": "uint8", "shape": (height, width), "names": ["height", "width"]},
+        "annotation.objects": {"dtype": "string", "shape": (1,), "names": None},
+        "annotation.scene": {"dtype": "string", "shape": (1,), "names": None},
+    }
+
+
+def _read_label_map(path: str) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as image:
+        return np.asarray(image.convert("L"), dtype=np.uint8)
+
+
+def write_staged(staging_dir: str, episode_dirs: list[str], out_dir: str, fps: int, progress: bool = True) -> str:
+    """Writes the staged episodes (``staging_dir/<d>`` for d in `episode_dirs`, in that order)
+    as a LeRobot v3.0 dataset at `out_dir` (which must not exist) and finalizes it.
+
+    Every staged episode carries ``episode.json``: ``{"name", "source", "prompt", "task",
+    "objects", "width", "height", "images": [png file names], "frame_images": [index into
+    images per frame], "masks": png file name, "trajectory": trajectory JSON at `fps`}``.
+    The image size of the dataset is that of the first episode; a later episode of another
+    size is left out and reported (``skipped``), never resized silently.
+
+    Returns JSON ``{"episodes", "frames", "skipped": [{"episode", "file", "reason"}]}``.
+    """
+    import datasets
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    datasets.disable_progress_bars()
+    if os.path.exists(out_dir):
+        raise InputError(f"{out_dir} already exists")
+    if not episode_dirs:
+        raise InputError("no episode could be converted, so there is no dataset to write")
+    dataset, size, frames, skipped = None, None, 0, []
+    bar = _progress(len(episode_dirs), "writing", progress)
+    for name in episode_dirs:
+        episode_dir = os.path.join(staging_dir, name)
+        with open(os.path.join(episode_dir, "episode.json")) as handle:
+            episode = json.load(handle)
+        shape = (int(episode["height"]), int(episode["width"]))
+        if size is None:
+            size = shape
+            dataset = LeRobotDataset.create(repo_id="cnfmp/converted", fps=int(fps), features=_features(*size),
+                                            root=out_dir, robot_type="cnfmp_converted", use_videos=False)
+        if shape != size:
+            skipped.append({"episode": episode["name"], "file": episode["source"],
+                            "reason": f"its images are {shape[1]}x{shape[0]} but the dataset's are "
+                                      f"{size[1]}x{size[0]} (set by its first episode); convert "
+                                      "different cameras into separate datasets"})
+            bar.update(1)
+            continue
+        frames += _save_episode(dataset, episode_dir, episode, fps)
+        bar.update(1)
+    bar.close()
+    dataset.finalize()
+    return json.dumps({"episodes": dataset.meta.total_episodes, "frames": frames, "skipped": skipped})
+
+
+def _save_episode(dataset, episode_dir: str, episode: dict, fps: int) -> int:
+    poses = np.asarray([f["position"] + f["orientation"] + [f["gripper"]] for f in episode["trajectory"]["frames"]],
+                       dtype=np.float32)
+    count = len(poses)
+    # The action of a frame is the pose of the next one (the last frame holds its pose), as in
+    # simulated datasets, so the core's "first state + actions" is the whole trajectory.
+    action = np.concatenate([poses[1:], poses[-1:]])
+    images = [os.path.join(episode_dir, name) for name in episode["images"]]
+    masks = _read_label_map(os.path.join(episode_dir, episode["masks"]))
+    scene = json.dumps({"task": episode["task"], "seed": int(episode.get("seed", -1)), "episode": episode["name"]})
+    objects = json.dumps(episode["objects"])
+    buffer = {
+        "size": count,
+        "task": [episode["prompt"]] * count,
+        "episode_index": dataset.meta.total_episodes,
+        "index": None, "task_index": None,  # filled in by save_episode
+        "frame_index": np.arange(count),
+        "timestamp": (np.arange(count) / fps).astype(np.float32),
+        IMAGE_KEY: [images[k] for k in episode["frame_images"]],
+        "observation.state": list(poses),
+        "action": list(action),
+        "annotation.masks": [masks] * count,
+        "annotation.objects": [objects] * count,
+        "annotation.scene": [scene] * count,
+    }
+    dataset.save_episode(episode_data=buffer)
+    return count
+
+
+_OPEN: dict[str, object] = {}
+
+
+def _open(dataset_dir: str):
+    """The dataset at `dataset_dir`, opened once per process (export calls come per episode)."""
+    dataset_dir = os.path.abspath(dataset_dir)
+    if dataset_dir not in _OPEN:
+        if not os.path.isfile(os.path.join(dataset_dir, "meta", "info.json")):
+            raise InputError(f"{dataset_dir} is not a LeRobot dataset (no meta/info.json)")
+        os.environ.setdefault("HF_HUB_OFFLINE", "1")
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        try:
+            dataset = LeRobotDataset(f"local/{os.path.basename(dataset_dir)}", root=dataset_dir)
+        except Exception as err:  # lerobot raises many types for a damaged dataset
+            raise InputError(f"{dataset_dir}: lerobot cannot read this dataset: {err}") from err
+        missing = sorted({IMAGE_KEY, "observation.state"} - set(dataset.features))
+        if missing:
+            raise InputError(f"{dataset_dir}: the dataset lacks feature(s) {', '.join(missing)}")
+        _OPEN.clear()
+        _OPEN[dataset_dir] = dataset
+    return _OPEN[dataset_dir]
+
+
+def episodes_of(dataset_dir: str) -> str:
+    """JSON ``{"episodes": E, "fps": F, "names": [name per episode]}`` of a LeRobot dataset.
+
+    The name is the one the episode had when it was converted (``annotation.scene``), else
+    ``episode_<index>``.
+    """
+    dataset = _open(dataset_dir)
+    names = []
+    starts = dataset.meta.episodes["dataset_from_index"]
+    scenes = dataset.hf_dataset.with_format(None)["annotation.scene"] if "annotation.scene" in dataset.features else None
+    for k, start in enumerate(starts):
+        scene = json.loads(scenes[int(start)] or "{}") if scenes is not None else {}
+        names.append(str(scene.get("episode") or f"episode_{k:06d}"))
+    if len(set(names)) != len(names):  # recorded names clash: fall back to indices
+        names = [f"episode_{k:06d}" for k in range(len(names))]
+    return json.dumps({"episodes": len(names), "fps": float(dataset.fps), "names": names})
+
+
+def export_episode(dataset_dir: str, index: int, out_dir: str) -> dict:
+    """Writes episode `index` of the dataset as a raw episode folder `out_dir` (created):
+    ``image.png`` (first frame), ``frames/NNNNNN.png`` (only when the camera image changes
+    during the episode), ``masks.png`` + ``objects.json`` (first frame's label map),
+    ``meta.json`` (task, prompt, fps, seed). The trajectory file is written by the caller
+    from the returned arrays, so every trajectory file goes through one writer.
+
+    Returns ``{"fps", "t" (T,), "position" (T,3), "orientation" (T,4) [w,x,y,z], "gripper" (T,)}``
+    from ``observation.state`` and the frame timestamps (s).
+    """
+    from PIL import Image
+
+    dataset = _open(dataset_dir)
+    if not 0 <= index < dataset.meta.total_episodes:
+        raise InputError(f"episode {index} does not exist (the dataset has {dataset.meta.total_episodes})")
+    start = int(dataset.meta.episodes["dataset_from_index"][index])
+    end = int(dataset.meta.episodes["dataset_to_index"][index])
+    rows = dataset.hf_dataset.with_format(None)[start:end]
+    state = np.asarray(rows["observation.state"], dtype=np.float64)
+    timestamps = np.asarray(rows["timestamp"], dtype=np.float64)
+    os.makedirs(out_dir)
+    images = [np.asarray(image.convert("RGB")) for image in rows[IMAGE_KEY]]
+    Image.fromarray(images[0]).save(os.path.join(out_dir, "image.png"))
+    if any(not np.array_equal(image, images[0]) for image in images[1:]):
+        os.makedirs(os.path.join(out_dir, "frames"))
+        for k, image in enumerate(images):
+            Image.fromarray(image).save(os.path.join(out_dir, "frames", f"{k:06d}.png"))
+    scene = json.loads(rows["annotation.scene"][0] or "{}") if "annotation.scene" in rows else {}
+    if "annotation.masks" in rows:
+        Image.fromarray(np.asarray(rows["annotation.masks"][0], dtype=np.uint8)).save(os.path.join(out_dir, "masks.png"))
+        with open(os.path.join(out_dir, "objects.json"), "w") as handle:
+            json.dump(json.loads(rows["annotation.objects"][0]), handle, indent=2)
+    task_index = int(rows["task_index"][0])
+    meta = {"task": scene.get("task", ""), "prompt": str(dataset.meta.tasks.index[task_index]),
+            "fps": float(dataset.fps)}
+    if int(scene.get("seed", -1)) >= 0:
+        meta["seed"] = int(scene["seed"])
+    with open(os.path.join(out_dir, "meta.json"), "w") as handle:
+        json.dump(meta, handle, indent=2)
+    return {"fps": float(dataset.fps), "t": timestamps - timestamps[0], "position": state[:, 0:3],
+            "orientation": state[:, 3:7], "gripper": state[:, 7]}
+
+
+def inspect(dataset_dir: str) -> str:
+    """The read-back checks of ``cnfmp dataset validate``: opens the dataset with lerobot's
+    own ``LeRobotDataset``, decodes the first and last frame of every episode through it, and
+    checks the annotations against the images.
+
+    Returns JSON ``{"checks": [{"name", "ok", "detail"}], "fps", "episodes": [{"index",
+    "timestamps": [...], "state": [[8 floats] per frame]}]}``; the trajectory invariants are
+    checked by the caller (the Rust trajectory code).
+    """
+    checks = []
+    try:
+        dataset = _open(dataset_dir)
+    except InputError as err:
+        return json.dumps({"checks": [{"name": "lerobot read-back", "ok": False, "detail": str(err)}],
+                           "fps": 0.0, "episodes": []})
+    _OPEN.clear()  # a validation must see the files as they are now, not a cached handle
+    info = dataset.meta.info
+    checks.append({"name": "format version", "ok": info.get("codebase_version") == "v3.0",
+                   "detail": f"codebase_version {info.get('codebase_version')} (cnfmp writes v3.0)"})
+    needed = {IMAGE_KEY, "observation.state", "action", "annotation.masks", "annotation.objects"}
+    missing = sorted(needed - set(dataset.features))
+    checks.append({"name": "cnfmp features", "ok": not missing,
+                   "detail": f"missing {', '.join(missing)}" if missing else "image, state, action, masks and objects present"})
+    problems, episodes = [], []
+    columns = [c for c in ("observation.state", "timestamp") if c in dataset.features]
+    table = dataset.hf_dataset.with_format(None).select_columns(columns)[:]
+    starts = dataset.meta.episodes["dataset_from_index"]
+    ends = dataset.meta.episodes["dataset_to_index"]
+    try:
+        for k, (start, end) in enumerate(zip(starts, ends)):
+            start, end = int(start), int(end)
+            for row in {start, end - 1}:
+                item = dataset[row]  # decodes through lerobot's own transforms
+                image = item[IMAGE_KEY]
+                if "annotation.masks" in item:
+                    labels = np.asarray(item["annotation.masks"])
+                    objects = json.loads(item["annotation.objects"])
+                    if labels.shape != tuple(image.shape[1:]):
+                        problems.append(f"episode {k} frame {row - start}: masks {labels.shape} do not match the image {tuple(image.shape[1:])}")
+                    elif int(labels.max(initial=0)) > len(objects):
+                        problems.append(f"episode {k} frame {row - start}: label {int(labels.max())} but only {len(objects)} object name(s)")
+            episodes.append({"index": k, "timestamps": table["timestamp"][start:end],
+                             "state": table["observation.state"][start:end]})
+        checks.append({"name": "lerobot read-back", "ok": True,
+                       "detail": f"LeRobotDataset read {dataset.meta.total_episodes} episodes, {dataset.meta.total_frames} frames"})
+    except Exception as err:  # noqa: BLE001 - any failure to decode is the finding
+        checks.append({"name": "lerobot read-back", "ok": False, "detail": f"{type(err).__name__}: {err}"})
+    checks.append({"name": "annotations", "ok": not problems,
+                   "detail": "; ".join(problems[:5]) if problems else "label maps match the images and name every label"})
+    return json.dumps({"checks": checks, "fps": float(dataset.fps), "episodes": episodes})
+
+
+def _progress(total: int, label: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=label, unit="episode", disable=not enabled, file=sys.stderr, dynamic_ncols=True)

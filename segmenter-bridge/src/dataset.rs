@@ -1,0 +1,178 @@
+//! Typed calls for dataset conversion and validation: writing staged episodes as a LeRobot
+//! dataset and reading episodes back (`cnfmp.data.lerobot_io`), and reading robomimic-style
+//! HDF5 demos (`cnfmp.data.hdf5`).
+
+use std::path::Path;
+
+use numpy::ndarray::{Array1, Array2, Array4};
+use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray4};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use serde::{Deserialize, Serialize};
+
+use crate::error::BridgeError;
+use crate::sim::TrajectoryArrays;
+use crate::worker::Bridge;
+
+/// An episode left out of a dataset, and why.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Eq)]
+pub struct SkippedEpisode {
+    /// The episode's name in the source (folder name, HDF5 demo).
+    pub episode: String,
+    /// The file (or HDF5 path) at fault.
+    pub file: String,
+    pub reason: String,
+}
+
+/// What [`Bridge::write_staged`] wrote.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Eq)]
+pub struct StagedWriteReport {
+    pub episodes: u64,
+    pub frames: u64,
+    /// Staged episodes that could not join the dataset (an image size unlike the first's).
+    pub skipped: Vec<SkippedEpisode>,
+}
+
+/// The episodes of a LeRobot dataset, for export.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct DatasetEpisodes {
+    pub episodes: u64,
+    pub fps: f64,
+    /// One folder-safe name per episode (recorded at conversion, else `episode_<index>`).
+    pub names: Vec<String>,
+}
+
+/// One result line of a dataset validation.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Eq)]
+pub struct DatasetCheck {
+    pub name: String,
+    pub ok: bool,
+    pub detail: String,
+}
+
+/// The states of one episode as lerobot reads them back.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct InspectedEpisode {
+    pub index: u64,
+    /// Frame times (s).
+    pub timestamps: Vec<f64>,
+    /// Per frame `[x, y, z, qw, qx, qy, qz, gripper]`.
+    pub state: Vec<[f64; 8]>,
+}
+
+/// What lerobot's reader says about a dataset (`cnfmp.data.lerobot_io.inspect`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct DatasetInspection {
+    pub checks: Vec<DatasetCheck>,
+    pub fps: f64,
+    pub episodes: Vec<InspectedEpisode>,
+}
+
+/// What an HDF5 file holds (`cnfmp.data.hdf5.list_demos`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct Hdf5Listing {
+    /// `demo_<k>` names in numeric order.
+    pub demos: Vec<String>,
+    /// The control rate the file records (Hz), else robomimic's usual 20 Hz.
+    pub fps: f64,
+    /// Whether `fps` came from the file.
+    pub fps_recorded: bool,
+    /// The camera whose images are read (`agentview` when present).
+    pub camera: Option<String>,
+}
+
+/// One HDF5 demo as arrays (T frames).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Hdf5Demo {
+    /// (T, H, W, 3) RGB.
+    pub images: Array4<u8>,
+    /// (H, W) label map (0 background, k = objects[k - 1]); zeros when the file has none.
+    pub masks: Array2<u8>,
+    pub objects: Vec<String>,
+    /// (T, 3) metres.
+    pub position: Array2<f64>,
+    /// (T, 4) `[w, x, y, z]`.
+    pub orientation: Array2<f64>,
+    /// (T,) opening in [0, 1] (unchecked: the caller validates).
+    pub gripper: Array1<f64>,
+    pub prompt: String,
+}
+
+/// `dict[key]`, or a KeyError naming it (shared by the calls that return dicts of arrays).
+pub(crate) fn item<'py>(dict: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+    dict.get_item(key)?.ok_or_else(|| pyo3::exceptions::PyKeyError::new_err(key.to_owned()))
+}
+
+pub(crate) fn vector(dict: &Bound<'_, PyDict>, key: &str) -> PyResult<Array1<f64>> {
+    Ok(item(dict, key)?.extract::<PyReadonlyArray1<f64>>()?.as_array().to_owned())
+}
+
+pub(crate) fn matrix(dict: &Bound<'_, PyDict>, key: &str) -> PyResult<Array2<f64>> {
+    Ok(item(dict, key)?.extract::<PyReadonlyArray2<f64>>()?.as_array().to_owned())
+}
+
+impl Bridge {
+    /// Writes the staged episode folders `staging/<name>` (in order) as a LeRobot v3.0 dataset
+    /// at `out` (must not exist) at `fps`, with a progress bar on stderr.
+    pub fn write_staged(&self, staging: &Path, episodes: Vec<String>, out: &Path, fps: u32) -> Result<StagedWriteReport, BridgeError> {
+        self.call_json("cnfmp.data.lerobot_io", "write_staged", (staging.to_path_buf(), episodes, out.to_path_buf(), fps))
+    }
+
+    /// The episodes of the LeRobot dataset at `dir`.
+    pub fn dataset_episodes(&self, dir: &Path) -> Result<DatasetEpisodes, BridgeError> {
+        self.call_json("cnfmp.data.lerobot_io", "episodes_of", (dir.to_path_buf(),))
+    }
+
+    /// Writes episode `index` of the dataset at `dir` as a raw episode folder `out` (images,
+    /// masks, objects, meta) and returns its trajectory (from `observation.state`), which the
+    /// caller writes.
+    pub fn export_episode(&self, dir: &Path, index: u64, out: &Path) -> Result<TrajectoryArrays, BridgeError> {
+        let (dir, out) = (dir.to_path_buf(), out.to_path_buf());
+        self.call(move |py| {
+            let run = || -> PyResult<TrajectoryArrays> {
+                let result = py.import("cnfmp.data.lerobot_io")?.call_method1("export_episode", (dir, index, out))?;
+                let dict = result.cast::<PyDict>()?;
+                Ok(TrajectoryArrays {
+                    fps: item(dict, "fps")?.extract()?,
+                    t: vector(dict, "t")?,
+                    position: matrix(dict, "position")?,
+                    orientation: matrix(dict, "orientation")?,
+                    gripper: vector(dict, "gripper")?,
+                })
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })
+    }
+
+    /// Reads the dataset at `dir` back with lerobot's `LeRobotDataset` (`cnfmp dataset validate`).
+    pub fn inspect_dataset(&self, dir: &Path) -> Result<DatasetInspection, BridgeError> {
+        self.call_json("cnfmp.data.lerobot_io", "inspect", (dir.to_path_buf(),))
+    }
+
+    /// The demos of a robomimic-style HDF5 file.
+    pub fn hdf5_demos(&self, file: &Path) -> Result<Hdf5Listing, BridgeError> {
+        self.call_json("cnfmp.data.hdf5", "list_demos", (file.to_path_buf(),))
+    }
+
+    /// Reads one demo of an HDF5 file; a malformed demo is [`BridgeError::InvalidInput`]
+    /// naming the HDF5 path at fault.
+    pub fn hdf5_demo(&self, file: &Path, demo: &str, camera: Option<String>) -> Result<Hdf5Demo, BridgeError> {
+        let (file, demo) = (file.to_path_buf(), demo.to_owned());
+        self.call(move |py| {
+            let run = || -> PyResult<Hdf5Demo> {
+                let result = py.import("cnfmp.data.hdf5")?.call_method1("read_demo", (file, demo, camera))?;
+                let dict = result.cast::<PyDict>()?;
+                Ok(Hdf5Demo {
+                    images: item(dict, "images")?.extract::<PyReadonlyArray4<u8>>()?.as_array().to_owned(),
+                    masks: item(dict, "masks")?.extract::<PyReadonlyArray2<u8>>()?.as_array().to_owned(),
+                    objects: item(dict, "objects")?.extract()?,
+                    position: matrix(dict, "position")?,
+                    orientation: matrix(dict, "orientation")?,
+                    gripper: vector(dict, "gripper")?,
+                    prompt: item(dict, "prompt")?.extract()?,
+                })
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })
+    }
+}
