@@ -8,7 +8,7 @@ use std::process::Output;
 use serde_json::Value;
 
 mod common;
-use common::{arg, cnfmp, stderr};
+use common::{TINY_CONFIG, arg, cnfmp, stderr};
 
 
 fn assert_bad_input(output: &Output, needle: &str) {
@@ -21,11 +21,6 @@ fn assert_bad_input(output: &Output, needle: &str) {
 }
 
 /// A configuration small enough to train in seconds on one thread.
-const TINY_CONFIG: &str = r#"{"field_resolution": 32, "latent_dim": 8, "num_endpoints": 3, "field_width": 32,
-  "field_layers": 2, "appearance_octaves": 4, "pixels_per_object": 64, "uniform_pixels": 64, "mask_dilation": 2,
-  "time_samples": 32, "search_candidates": 16,
-  "search_starts": 2, "refine_steps": 5, "inference_pixels": 128, "motion_refit_steps": 20}"#;
-
 #[test]
 fn train_predict_eval_and_bad_inputs() {
     let dir = tempfile::tempdir().unwrap();

@@ -168,8 +168,8 @@ def export_episode(dataset_dir: str, index: int, out_dir: str) -> dict:
     ``meta.json`` (task, prompt, fps, seed). The trajectory file is written by the caller
     from the returned arrays, so every trajectory file goes through one writer.
 
-    Returns ``{"fps", "t" (T,), "position" (T,3), "orientation" (T,4) [w,x,y,z], "gripper" (T,)}``
-    from ``observation.state`` and the frame timestamps (s).
+    Returns ``{"fps", "t" (T,) = frame_index / fps (s), "position" (T,3), "orientation" (T,4)
+    [w,x,y,z], "gripper" (T,)}`` from ``observation.state``.
     """
     from PIL import Image
 
@@ -180,7 +180,9 @@ def export_episode(dataset_dir: str, index: int, out_dir: str) -> dict:
     end = int(dataset.meta.episodes["dataset_to_index"][index])
     rows = dataset.hf_dataset.with_format(None)[start:end]
     state = np.asarray(rows["observation.state"], dtype=np.float64)
-    timestamps = np.asarray(rows["timestamp"], dtype=np.float64)
+    # Frame k is at k / fps exactly (validate checks the stored float32 timestamps agree), so
+    # converting the export again lands on the same grid with no interpolation.
+    times = np.asarray(rows["frame_index"], dtype=np.float64) / float(dataset.fps)
     os.makedirs(out_dir)
     images = [np.asarray(image.convert("RGB")) for image in rows[IMAGE_KEY]]
     Image.fromarray(images[0]).save(os.path.join(out_dir, "image.png"))
@@ -200,7 +202,7 @@ def export_episode(dataset_dir: str, index: int, out_dir: str) -> dict:
         meta["seed"] = int(scene["seed"])
     with open(os.path.join(out_dir, "meta.json"), "w") as handle:
         json.dump(meta, handle, indent=2)
-    return {"fps": float(dataset.fps), "t": timestamps - timestamps[0], "position": state[:, 0:3],
+    return {"fps": float(dataset.fps), "t": times, "position": state[:, 0:3],
             "orientation": state[:, 3:7], "gripper": state[:, 7]}
 
 

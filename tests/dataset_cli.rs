@@ -1,0 +1,322 @@
+//! End-to-end tests of `cnfmp dataset convert` and `cnfmp dataset validate` on the real
+//! binary: lerobot writes and reads the datasets, h5py writes the HDF5 input.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use cnfmp::images;
+use cnfmp::trajectory::Trajectory;
+use cnfmp::trajectory::resample::{ResampleTarget, resample};
+use serde_json::Value;
+
+use common::{TINY_CONFIG, arg, cnfmp, copy_tree, repo, stderr};
+
+fn example() -> PathBuf {
+    repo().join("datasets/examples/raw")
+}
+
+fn ok(output: &Output, what: &str) -> Value {
+    assert!(output.status.success(), "{what} failed: {}", stderr(output));
+    serde_json::from_slice(&output.stdout).unwrap_or(Value::Null)
+}
+
+fn convert(from: &str, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["dataset", "convert", "--from", from, "--out", arg(out)];
+    args.extend_from_slice(extra);
+    cnfmp(&args)
+}
+
+fn close(a: &Trajectory, b: &Trajectory, tolerance: f64) {
+    assert_eq!(a.frames.len(), b.frames.len());
+    for (x, y) in a.frames.iter().zip(&b.frames) {
+        assert!((x.t - a.start() - (y.t - b.start())).abs() < tolerance, "t {} vs {}", x.t, y.t);
+        assert!((x.pose.position - y.pose.position).norm() < tolerance, "{:?} vs {:?}", x.pose.position, y.pose.position);
+        assert!(x.pose.orientation.angle_to(&y.pose.orientation) < tolerance.sqrt() * 1e-2);
+        assert!((x.gripper - y.gripper).abs() < tolerance);
+    }
+}
+
+#[test]
+fn raw_to_lerobot_to_raw_round_trips_validates_and_trains() {
+    let dir = tempfile::tempdir().unwrap();
+    let dataset = dir.path().join("lerobot");
+    let report = ok(&convert(&format!("raw:{}", example().display()), &dataset, &[]), "convert");
+    assert_eq!(report["converted"], 3);
+    assert_eq!(report["fps"], 10.0);
+    assert!(dataset.join(cnfmp::convert::REPORT_FILE).is_file());
+    assert!(!dir.path().join(".lerobot.convert").exists(), "the staging area is removed");
+
+    let validation = ok(&cnfmp(&["dataset", "validate", arg(&dataset), "--json"]), "validate");
+    assert_eq!(validation["passed"], true, "{validation}");
+    let names: Vec<&str> = validation["checks"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
+    assert!(names.contains(&"lerobot read-back") && names.iter().any(|n| n.starts_with("lerobot-doctor")), "{names:?}");
+
+    let back = dir.path().join("raw");
+    let exported = ok(&convert(&format!("lerobot:{}", dataset.display()), &back, &["--to", "raw"]), "export");
+    assert_eq!(exported["converted"], 3);
+    for name in ["episode_000", "episode_001", "episode_002"] {
+        let (source, copy) = (example().join(name), back.join(name));
+        let rgb = |path: &Path| images::read_rgb(path).unwrap();
+        assert_eq!(rgb(&source.join("image.png")), rgb(&copy.join("image.png")), "{name}: image");
+        assert!(!copy.join("frames").exists(), "a static camera exports one image");
+        let original = match Trajectory::load(&source.join("trajectory.json")) {
+            Ok(trajectory) => trajectory,
+            Err(_) => {
+                let text = std::fs::read_to_string(source.join("trajectory.csv")).unwrap();
+                cnfmp::trajectory::csv::from_csv_str(&text, 10.0).unwrap()
+            }
+        };
+        // Episode 2 was recorded at 25 Hz: the dataset holds it resampled to 10 Hz.
+        let expected = resample(&original, ResampleTarget::Fps(10.0)).unwrap();
+        close(&expected, &Trajectory::load(&copy.join("trajectory.json")).unwrap(), 1e-6);
+        let meta: Value = serde_json::from_str(&std::fs::read_to_string(copy.join("meta.json")).unwrap()).unwrap();
+        let source_meta: Value = serde_json::from_str(&std::fs::read_to_string(source.join("meta.json")).unwrap()).unwrap();
+        assert_eq!(meta["prompt"], source_meta["prompt"]);
+        assert_eq!(meta["seed"], source_meta["seed"]);
+    }
+    // Per-object masks came in as masks/<object>.png; they come back as one label map.
+    let labels = images::read_label_map(&back.join("episode_001/masks.png")).unwrap();
+    let wall = images::read_label_map(&example().join("episode_001/masks/wall.png")).unwrap();
+    for (label, mask) in labels.pixels.iter().zip(&wall.pixels) {
+        assert_eq!(*label == 1, *mask != 0);
+    }
+
+    // raw -> lerobot once more: the round trip is a fixed point.
+    let again = dir.path().join("again");
+    ok(&convert(&format!("raw:{}", back.display()), &again, &[]), "reconvert");
+    let twice = dir.path().join("raw2");
+    ok(&convert(&format!("lerobot:{}", again.display()), &twice, &["--to", "raw"]), "re-export");
+    for name in ["episode_000", "episode_001", "episode_002"] {
+        for file in ["image.png", "masks.png", "trajectory.json", "objects.json"] {
+            let same = std::fs::read(back.join(name).join(file)).unwrap() == std::fs::read(twice.join(name).join(file)).unwrap();
+            assert!(same, "{name}/{file} changed on the second round trip");
+        }
+    }
+
+    // The converted dataset trains.
+    let config = dir.path().join("tiny.json");
+    std::fs::write(&config, TINY_CONFIG).unwrap();
+    let model = dir.path().join("model");
+    let trained = cnfmp(&["train", "--dataset", arg(&dataset), "--out", arg(&model), "--config", arg(&config), "--steps", "10"]);
+    let trained = ok(&trained, "train");
+    assert_eq!(trained["demos"], 3);
+    assert!(model.join("model.safetensors").is_file());
+}
+
+/// Writes a broken copy of example episode 0 under `root/name` and lets `spoil` damage it.
+fn broken_episode(root: &Path, name: &str, spoil: impl FnOnce(&Path)) {
+    let episode = root.join(name);
+    copy_tree(&example().join("episode_000"), &episode);
+    spoil(&episode);
+}
+
+fn edit_trajectory(episode: &Path, edit: impl FnOnce(&mut Value)) {
+    let path = episode.join("trajectory.json");
+    let mut value: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    edit(&mut value);
+    std::fs::write(&path, serde_json::to_string(&value).unwrap().replace("\"NAN\"", "NaN")).unwrap();
+}
+
+#[test]
+fn bad_episodes_are_reported_with_file_and_reason_and_strict_stops() {
+    let dir = tempfile::tempdir().unwrap();
+    let source = dir.path().join("source");
+    copy_tree(&example(), &source);
+    broken_episode(&source, "bad_image", |e| {
+        let bytes = std::fs::read(e.join("image.png")).unwrap();
+        std::fs::write(e.join("image.png"), &bytes[..bytes.len() / 2]).unwrap();
+    });
+    broken_episode(&source, "bad_masks_size", |e| {
+        let small = images::Image { width: 8, height: 8, channels: 1, pixels: vec![0; 64] };
+        images::write_png(&e.join("masks.png"), &small).unwrap();
+    });
+    broken_episode(&source, "bad_nan", |e| edit_trajectory(e, |t| t["frames"][3]["position"][1] = "NAN".into()));
+    broken_episode(&source, "bad_time", |e| edit_trajectory(e, |t| t["frames"][5]["t"] = 0.0.into()));
+    broken_episode(&source, "bad_objects", |e| std::fs::write(e.join("objects.json"), r#"["wall"]"#).unwrap());
+    broken_episode(&source, "bad_missing_image", |e| std::fs::remove_file(e.join("image.png")).unwrap());
+
+    let out = dir.path().join("out");
+    let report = ok(&convert(&format!("raw:{}", source.display()), &out, &["--workers", "3"]), "convert");
+    assert_eq!(report["episodes"], 9);
+    assert_eq!(report["converted"], 3);
+    let skipped = report["skipped"].as_array().unwrap();
+    let reason = |episode: &str| -> (String, String) {
+        let entry = skipped.iter().find(|s| s["episode"] == episode).unwrap_or_else(|| panic!("{episode} not reported: {skipped:?}"));
+        (entry["file"].as_str().unwrap().to_owned(), entry["reason"].as_str().unwrap().to_owned())
+    };
+    let (file, why) = reason("bad_image");
+    assert!(file.ends_with("bad_image/image.png") && why.contains("not a readable PNG"), "{file}: {why}");
+    let (file, why) = reason("bad_masks_size");
+    assert!(file.ends_with("masks.png") && why.contains("8x8") && why.contains("same size"), "{file}: {why}");
+    let (file, why) = reason("bad_nan");
+    assert!(file.ends_with("trajectory.json") && why.contains("frames[3].position") && why.contains("NaN"), "{file}: {why}");
+    let (_, why) = reason("bad_time");
+    assert!(why.contains("frames[5].t") && why.contains("does not increase"), "{why}");
+    let (_, why) = reason("bad_objects");
+    assert!(why.contains("unknown object") && why.contains("label 2"), "{why}");
+    let (file, why) = reason("bad_missing_image");
+    assert!(file.ends_with("image.png") && why.contains("cannot open"), "{file}: {why}");
+    let stored: Value = serde_json::from_str(&std::fs::read_to_string(out.join(cnfmp::convert::REPORT_FILE)).unwrap()).unwrap();
+    assert_eq!(stored["skipped"].as_array().unwrap().len(), 6);
+
+    let strict = dir.path().join("strict");
+    let output = convert(&format!("raw:{}", source.display()), &strict, &["--strict", "--workers", "1"]);
+    assert_eq!(output.status.code(), Some(2), "{}", stderr(&output));
+    assert!(stderr(&output).contains("episode bad_image is bad (--strict)"), "{}", stderr(&output));
+    assert!(!strict.exists(), "a failed conversion leaves no dataset");
+
+    // The output exists now: a second conversion into it is refused, and nothing is touched.
+    let output = convert(&format!("raw:{}", source.display()), &out, &[]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(stderr(&output).contains("already exists"), "{}", stderr(&output));
+    for (args, message) in [
+        (vec!["--from", "zarr:x"], "unknown format"),
+        (vec!["--from", "raw:/no/such/dir"], "no such file"),
+    ] {
+        let mut all = vec!["dataset", "convert", "--out", arg(&strict)];
+        all.extend(args);
+        let output = cnfmp(&all);
+        assert_eq!(output.status.code(), Some(2), "{message}");
+        assert!(stderr(&output).contains(message), "{}", stderr(&output));
+    }
+}
+
+fn python() -> PathBuf {
+    repo().join(".venv/bin/python")
+}
+
+#[test]
+fn robomimic_hdf5_converts() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("demos.hdf5");
+    // Three demos at 20 Hz (recorded in env_args); demo_2 has a NaN position.
+    let script = r#"
+import json, sys
+import h5py, numpy as np
+rng = np.random.default_rng(0)
+with h5py.File(sys.argv[1], "w") as f:
+    data = f.create_group("data")
+    data.attrs["env_args"] = json.dumps({"env_name": "Lift", "env_kwargs": {"control_freq": 20}})
+    for k in range(3):
+        g = data.create_group(f"demo_{k}")
+        g.attrs["lang"] = f"lift the cube {k}"
+        g.attrs["objects"] = json.dumps(["cube"])
+        T = 12
+        image = rng.integers(0, 255, (T, 16, 24, 3), dtype=np.uint8)
+        masks = np.zeros((T, 16, 24), np.uint8); masks[:, 4:9, 5:12] = 1
+        pos = np.stack([np.linspace(0, 0.1, T), np.full(T, 0.2), np.linspace(0.3, 0.1, T)], 1)
+        if k == 2: pos[4, 0] = np.nan
+        angle = np.linspace(0, 0.5, T)
+        quat_xyzw = np.stack([np.zeros(T), np.zeros(T), np.sin(angle / 2), np.cos(angle / 2)], 1)
+        qpos = np.stack([np.linspace(0.04, 0.01, T), -np.linspace(0.04, 0.01, T)], 1)
+        g.create_dataset("obs/agentview_image", data=image)
+        g.create_dataset("obs/agentview_masks", data=masks)
+        g.create_dataset("obs/robot0_eye_in_hand_image", data=image)
+        g.create_dataset("obs/robot0_eef_pos", data=pos)
+        g.create_dataset("obs/robot0_eef_quat", data=quat_xyzw)
+        g.create_dataset("obs/robot0_gripper_qpos", data=qpos)
+        g.create_dataset("actions", data=np.zeros((T, 7)))
+"#;
+    let status = Command::new(python()).args(["-c", script, arg(&file)]).status().unwrap();
+    assert!(status.success());
+
+    let dataset = dir.path().join("lerobot");
+    let report = ok(&convert(&format!("hdf5:{}", file.display()), &dataset, &[]), "convert hdf5");
+    assert_eq!(report["fps"], 20.0);
+    assert_eq!(report["converted"], 2);
+    let skipped = report["skipped"].as_array().unwrap();
+    assert_eq!(skipped.len(), 1);
+    assert!(skipped[0]["file"].as_str().unwrap().ends_with("data/demo_2"));
+    assert!(skipped[0]["reason"].as_str().unwrap().contains("not a finite number"), "{skipped:?}");
+    ok(&cnfmp(&["dataset", "validate", arg(&dataset)]), "validate");
+
+    let back = dir.path().join("raw");
+    ok(&convert(&format!("lerobot:{}", dataset.display()), &back, &["--to", "raw"]), "export");
+    let trajectory = Trajectory::load(&back.join("demo_1/trajectory.json")).unwrap();
+    assert_eq!(trajectory.frames.len(), 12);
+    let last = trajectory.frames[11];
+    assert!((last.t - 11.0 / 20.0).abs() < 1e-6);
+    assert!((last.pose.position - nalgebra::Vector3::new(0.1, 0.2, 0.1)).norm() < 1e-6);
+    // [x, y, z, w] in the file became [w, x, y, z]: a 0.5 rad turn about z.
+    assert!((last.pose.orientation.angle() - 0.5).abs() < 1e-5);
+    assert!((last.pose.orientation.axis().unwrap().z - 1.0).abs() < 1e-6);
+    // Fingers at +-0.01 m: 0.02 m of the Panda's 0.08 m.
+    assert!((last.gripper - 0.25).abs() < 1e-6, "{}", last.gripper);
+    assert!(back.join("demo_1/frames").is_dir(), "a moving camera keeps its frames");
+    let meta: Value = serde_json::from_str(&std::fs::read_to_string(back.join("demo_1/meta.json")).unwrap()).unwrap();
+    assert_eq!(meta["prompt"], "lift the cube 1");
+    let labels = images::read_label_map(&back.join("demo_1/masks.png")).unwrap();
+    assert_eq!((labels.width, labels.height, labels.max_label()), (24, 16, 1));
+}
+
+/// Every file under `dir` (relative path -> bytes), except the conversion report.
+fn tree(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut files = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(current) = stack.pop() {
+        for entry in std::fs::read_dir(&current).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+            } else if !path.ends_with(cnfmp::convert::REPORT_FILE) {
+                files.push((path.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&path).unwrap()));
+            }
+        }
+    }
+    files.sort();
+    files
+}
+
+#[test]
+fn a_conversion_killed_midway_resumes_to_the_same_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    let source = dir.path().join("source");
+    // 24 episodes: example episodes under new names.
+    for k in 0..24 {
+        copy_tree(&example().join(format!("episode_00{}", k % 3)), &source.join(format!("ep_{k:03}")));
+    }
+    let from = format!("raw:{}", source.display());
+
+    let reference = dir.path().join("reference");
+    ok(&convert(&from, &reference, &[]), "uninterrupted conversion");
+
+    let out = dir.path().join("out");
+    let staging = dir.path().join(".out.convert");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_cnfmp"))
+        .args(["dataset", "convert", "--from", &from, "--out", arg(&out), "--workers", "1"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    // Kill it once lerobot has started writing the dataset (staging is done by then).
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while !staging.join("output/data").exists() {
+        assert!(Instant::now() < deadline, "the conversion never started writing");
+        assert!(child.try_wait().unwrap().is_none(), "the conversion finished before it could be killed");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    assert!(!out.exists(), "an interrupted conversion leaves no dataset at --out");
+
+    let report = ok(&convert(&from, &out, &[]), "resumed conversion");
+    assert_eq!(report["resumed"], 24, "the staged episodes are reused");
+    assert_eq!(report["converted"], 24);
+    assert!(!staging.exists());
+    ok(&cnfmp(&["dataset", "validate", arg(&out)]), "validate");
+
+    // Equal to the uninterrupted run: both exported back to raw, file by file.
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    ok(&convert(&format!("lerobot:{}", reference.display()), &a, &["--to", "raw"]), "export reference");
+    ok(&convert(&format!("lerobot:{}", out.display()), &b, &["--to", "raw"]), "export resumed");
+    let (ta, tb) = (tree(&a), tree(&b));
+    assert_eq!(ta.len(), tb.len());
+    assert!(ta.len() >= 24 * 5);
+    for ((name_a, bytes_a), (name_b, bytes_b)) in ta.iter().zip(&tb) {
+        assert_eq!(name_a, name_b);
+        assert!(bytes_a == bytes_b, "{name_a} differs");
+    }
+}
