@@ -40,6 +40,7 @@ test-python:
 bench: setup  ## benchmarks that print figures (see docs/benchmarks.md)
 	bash scripts/bench-sim.sh
 	bash scripts/bench-core.sh
+	bash scripts/bench-convert.sh
 	bash scripts/bench-setup.sh
 
 models: setup  ## retrain the shipped core models under models/ (scripts/train-models.sh)

@@ -168,6 +168,19 @@ fn bad_episodes_are_reported_with_file_and_reason_and_strict_stops() {
     assert!(stderr(&output).contains("episode bad_image is bad (--strict)"), "{}", stderr(&output));
     assert!(!strict.exists(), "a failed conversion leaves no dataset");
 
+    // validate: a damaged dataset fails with the check named; a non-dataset is bad input.
+    let damaged = dir.path().join("damaged");
+    copy_tree(&out, &damaged);
+    let parquet = damaged.join("data/chunk-000/file-000.parquet");
+    let bytes = std::fs::read(&parquet).unwrap();
+    std::fs::write(&parquet, &bytes[..bytes.len() / 3]).unwrap();
+    let output = cnfmp(&["dataset", "validate", arg(&damaged)]);
+    assert_eq!(output.status.code(), Some(2), "{}", stderr(&output));
+    assert!(String::from_utf8_lossy(&output.stdout).contains("FAIL lerobot read-back"), "{}", String::from_utf8_lossy(&output.stdout));
+    let output = cnfmp(&["dataset", "validate", arg(&source)]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(stderr(&output).contains("not a LeRobot dataset"), "{}", stderr(&output));
+
     // The output exists now: a second conversion into it is refused, and nothing is touched.
     let output = convert(&format!("raw:{}", source.display()), &out, &[]);
     assert_eq!(output.status.code(), Some(2));
