@@ -9,12 +9,12 @@ by training and prediction so both see identical preprocessing.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from cnfmp.data.generate import IMAGE_KEY
+from cnfmp.data.lerobot_io import open_dataset
 from cnfmp.errors import InputError
 
 
@@ -54,15 +54,7 @@ def load_demonstrations(dataset_dir: str) -> Demonstrations:
     every frame (the commanded pose and gripper of the next frame). Raises InputError when
     the directory is not a LeRobot dataset with the features the core needs.
     """
-    if not os.path.isfile(os.path.join(dataset_dir, "meta", "info.json")):
-        raise InputError(f"{dataset_dir} is not a LeRobot dataset (no meta/info.json)")
-    os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    try:
-        dataset = LeRobotDataset(f"local/{os.path.basename(os.path.abspath(dataset_dir))}", root=dataset_dir)
-    except Exception as err:  # lerobot raises many types for a damaged dataset
-        raise InputError(f"{dataset_dir}: lerobot cannot read this dataset: {err}") from err
+    dataset = open_dataset(dataset_dir)
     needed = {IMAGE_KEY, "observation.state", "action", "annotation.masks", "annotation.objects"}
     missing = sorted(needed - set(dataset.features))
     if missing:

@@ -35,14 +35,14 @@ STATE_NAMES = ["x", "y", "z", "qw", "qx", "qy", "qz", "gripper"]
 IMAGE_KEY = "observation.images.front"
 
 
-def features() -> dict:
-    """The LeRobot feature specification of our datasets."""
-    size = sc.IMAGE_SIZE
+def features(height: int = sc.IMAGE_SIZE, width: int = sc.IMAGE_SIZE) -> dict:
+    """The LeRobot feature specification of our datasets (simulated: 128x128 images;
+    converted: the source camera's size)."""
     return {
-        IMAGE_KEY: {"dtype": "image", "shape": (size, size, 3), "names": ["height", "width", "channels"]},
+        IMAGE_KEY: {"dtype": "image", "shape": (height, width, 3), "names": ["height", "width", "channels"]},
         "observation.state": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
         "action": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
-        "annotation.masks": {"dtype": "uint8", "shape": (size, size), "names": ["height", "width"]},
+        "annotation.masks": {"dtype": "uint8", "shape": (height, width), "names": ["height", "width"]},
         "annotation.objects": {"dtype": "string", "shape": (1,), "names": None},
         # (1,)-shaped numeric features fail to encode with numpy 2.4 in lerobot 0.4.4, so the
         # scene identity travels as a JSON string: {"task": ..., "seed": ...}.
@@ -126,7 +126,7 @@ def generate_dataset(task: str, episodes: int, seed: int, out_dir: str, workers:
     shutil.rmtree(staging, ignore_errors=True)
     start = time.perf_counter()
     written, skipped, frames = [], [], 0
-    bar = _progress(episodes, f"{task}", progress)
+    bar = progress_bar(episodes, f"{task}", progress)
     context = multiprocessing.get_context("spawn")  # fork is unsafe in a threaded (embedded) parent
     try:
         dataset = LeRobotDataset.create(repo_id=f"cnfmp/{task}", fps=DATASET_FPS, features=features(),
@@ -177,7 +177,8 @@ def _write_episode(dataset, episode: dict) -> int:
     return len(episode["images"])
 
 
-def _progress(total: int, label: str, enabled: bool):
+def progress_bar(total: int, label: str, enabled: bool):
+    """A tqdm bar on stderr counting episodes (disabled when `enabled` is false)."""
     from tqdm import tqdm
 
     return tqdm(total=total, desc=label, unit="episode", disable=not enabled, file=sys.stderr,

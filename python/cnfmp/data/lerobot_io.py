@@ -19,23 +19,11 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 
 import numpy as np
 
-from cnfmp.data.generate import IMAGE_KEY, STATE_NAMES
+from cnfmp.data.generate import IMAGE_KEY, features, progress_bar
 from cnfmp.errors import InputError
-
-
-def _features(height: int, width: int) -> dict:
-    return {
-        IMAGE_KEY: {"dtype": "image", "shape": (height, width, 3), "names": ["height", "width", "channels"]},
-        "observation.state": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
-        "action": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
-        "annotation.masks": {"dtype": "uint8", "shape": (height, width), "names": ["height", "width"]},
-        "annotation.objects": {"dtype": "string", "shape": (1,), "names": None},
-        "annotation.scene": {"dtype": "string", "shape": (1,), "names": None},
-    }
 
 
 def _read_label_map(path: str) -> np.ndarray:
@@ -66,7 +54,7 @@ def write_staged(staging_dir: str, episode_dirs: list[str], out_dir: str, fps: i
     if not episode_dirs:
         raise InputError("no episode could be converted, so there is no dataset to write")
     dataset, size, frames, skipped = None, None, 0, []
-    bar = _progress(len(episode_dirs), "writing", progress)
+    bar = progress_bar(len(episode_dirs), "writing", progress)
     for name in episode_dirs:
         episode_dir = os.path.join(staging_dir, name)
         with open(os.path.join(episode_dir, "episode.json")) as handle:
@@ -74,7 +62,7 @@ def write_staged(staging_dir: str, episode_dirs: list[str], out_dir: str, fps: i
         shape = (int(episode["height"]), int(episode["width"]))
         if size is None:
             size = shape
-            dataset = LeRobotDataset.create(repo_id="cnfmp/converted", fps=int(fps), features=_features(*size),
+            dataset = LeRobotDataset.create(repo_id="cnfmp/converted", fps=int(fps), features=features(*size),
                                             root=out_dir, robot_type="cnfmp_converted", use_videos=False)
         if shape != size:
             skipped.append({"episode": episode["name"], "file": episode["source"],
@@ -119,6 +107,22 @@ def _save_episode(dataset, episode_dir: str, episode: dict, fps: int) -> int:
     return count
 
 
+def open_dataset(dataset_dir: str):
+    """Opens the LeRobot dataset at `dataset_dir` with lerobot's own reader, offline.
+
+    InputError when the directory is not a dataset or lerobot cannot read it.
+    """
+    if not os.path.isfile(os.path.join(dataset_dir, "meta", "info.json")):
+        raise InputError(f"{dataset_dir} is not a LeRobot dataset (no meta/info.json)")
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    try:
+        return LeRobotDataset(f"local/{os.path.basename(os.path.abspath(dataset_dir))}", root=dataset_dir)
+    except Exception as err:  # lerobot raises many types for a damaged dataset
+        raise InputError(f"{dataset_dir}: lerobot cannot read this dataset: {err}") from err
+
+
 _OPEN: dict[str, object] = {}
 
 
@@ -126,15 +130,7 @@ def _open(dataset_dir: str):
     """The dataset at `dataset_dir`, opened once per process (export calls come per episode)."""
     dataset_dir = os.path.abspath(dataset_dir)
     if dataset_dir not in _OPEN:
-        if not os.path.isfile(os.path.join(dataset_dir, "meta", "info.json")):
-            raise InputError(f"{dataset_dir} is not a LeRobot dataset (no meta/info.json)")
-        os.environ.setdefault("HF_HUB_OFFLINE", "1")
-        from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-        try:
-            dataset = LeRobotDataset(f"local/{os.path.basename(dataset_dir)}", root=dataset_dir)
-        except Exception as err:  # lerobot raises many types for a damaged dataset
-            raise InputError(f"{dataset_dir}: lerobot cannot read this dataset: {err}") from err
+        dataset = open_dataset(dataset_dir)
         missing = sorted({IMAGE_KEY, "observation.state"} - set(dataset.features))
         if missing:
             raise InputError(f"{dataset_dir}: the dataset lacks feature(s) {', '.join(missing)}")
@@ -217,11 +213,10 @@ def inspect(dataset_dir: str) -> str:
     """
     checks = []
     try:
-        dataset = _open(dataset_dir)
+        dataset = open_dataset(dataset_dir)  # not the export cache: validate the files as they are now
     except InputError as err:
         return json.dumps({"checks": [{"name": "lerobot read-back", "ok": False, "detail": str(err)}],
                            "fps": 0.0, "episodes": []})
-    _OPEN.clear()  # a validation must see the files as they are now, not a cached handle
     info = dataset.meta.info
     checks.append({"name": "format version", "ok": info.get("codebase_version") == "v3.0",
                    "detail": f"codebase_version {info.get('codebase_version')} (cnfmp writes v3.0)"})
@@ -256,9 +251,3 @@ def inspect(dataset_dir: str) -> str:
     checks.append({"name": "annotations", "ok": not problems,
                    "detail": "; ".join(problems[:5]) if problems else "label maps match the images and name every label"})
     return json.dumps({"checks": checks, "fps": float(dataset.fps), "episodes": episodes})
-
-
-def _progress(total: int, label: str, enabled: bool):
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc=label, unit="episode", disable=not enabled, file=sys.stderr, dynamic_ncols=True)
