@@ -5,13 +5,12 @@
 use std::path::Path;
 
 use numpy::ndarray::{Array1, Array2, Array4};
-use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray4};
+use numpy::{PyReadonlyArray2, PyReadonlyArray4};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
 use serde::{Deserialize, Serialize};
 
 use crate::error::BridgeError;
-use crate::sim::TrajectoryArrays;
+use crate::sim::{TrajectoryArrays, item, matrix, vector};
 use crate::worker::Bridge;
 
 /// An episode left out of a dataset, and why.
@@ -40,6 +39,8 @@ pub struct DatasetEpisodes {
     pub fps: f64,
     /// One folder-safe name per episode (recorded at conversion, else `episode_<index>`).
     pub names: Vec<String>,
+    /// Frames per episode.
+    pub lengths: Vec<u64>,
 }
 
 /// One result line of a dataset validation.
@@ -98,19 +99,6 @@ pub struct Hdf5Demo {
     pub prompt: String,
 }
 
-/// `dict[key]`, or a KeyError naming it (shared by the calls that return dicts of arrays).
-pub(crate) fn item<'py>(dict: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyAny>> {
-    dict.get_item(key)?.ok_or_else(|| pyo3::exceptions::PyKeyError::new_err(key.to_owned()))
-}
-
-pub(crate) fn vector(dict: &Bound<'_, PyDict>, key: &str) -> PyResult<Array1<f64>> {
-    Ok(item(dict, key)?.extract::<PyReadonlyArray1<f64>>()?.as_array().to_owned())
-}
-
-pub(crate) fn matrix(dict: &Bound<'_, PyDict>, key: &str) -> PyResult<Array2<f64>> {
-    Ok(item(dict, key)?.extract::<PyReadonlyArray2<f64>>()?.as_array().to_owned())
-}
-
 impl Bridge {
     /// Writes the staged episode folders `staging/<name>` (in order) as a LeRobot v3.0 dataset
     /// at `out` (must not exist) at `fps`, with a progress bar on stderr.
@@ -127,21 +115,7 @@ impl Bridge {
     /// masks, objects, meta) and returns its trajectory (from `observation.state`), which the
     /// caller writes.
     pub fn export_episode(&self, dir: &Path, index: u64, out: &Path) -> Result<TrajectoryArrays, BridgeError> {
-        let (dir, out) = (dir.to_path_buf(), out.to_path_buf());
-        self.call(move |py| {
-            let run = || -> PyResult<TrajectoryArrays> {
-                let result = py.import("cnfmp.data.lerobot_io")?.call_method1("export_episode", (dir, index, out))?;
-                let dict = result.cast::<PyDict>()?;
-                Ok(TrajectoryArrays {
-                    fps: item(dict, "fps")?.extract()?,
-                    t: vector(dict, "t")?,
-                    position: matrix(dict, "position")?,
-                    orientation: matrix(dict, "orientation")?,
-                    gripper: vector(dict, "gripper")?,
-                })
-            };
-            run().map_err(|err| BridgeError::python(py, &err))
-        })
+        self.call_dict("cnfmp.data.lerobot_io", "export_episode", (dir.to_path_buf(), index, out.to_path_buf()), TrajectoryArrays::from_dict)
     }
 
     /// Reads the dataset at `dir` back with lerobot's `LeRobotDataset` (`cnfmp dataset validate`).
@@ -157,22 +131,16 @@ impl Bridge {
     /// Reads one demo of an HDF5 file; a malformed demo is [`BridgeError::InvalidInput`]
     /// naming the HDF5 path at fault.
     pub fn hdf5_demo(&self, file: &Path, demo: &str, camera: Option<String>) -> Result<Hdf5Demo, BridgeError> {
-        let (file, demo) = (file.to_path_buf(), demo.to_owned());
-        self.call(move |py| {
-            let run = || -> PyResult<Hdf5Demo> {
-                let result = py.import("cnfmp.data.hdf5")?.call_method1("read_demo", (file, demo, camera))?;
-                let dict = result.cast::<PyDict>()?;
-                Ok(Hdf5Demo {
-                    images: item(dict, "images")?.extract::<PyReadonlyArray4<u8>>()?.as_array().to_owned(),
-                    masks: item(dict, "masks")?.extract::<PyReadonlyArray2<u8>>()?.as_array().to_owned(),
-                    objects: item(dict, "objects")?.extract()?,
-                    position: matrix(dict, "position")?,
-                    orientation: matrix(dict, "orientation")?,
-                    gripper: vector(dict, "gripper")?,
-                    prompt: item(dict, "prompt")?.extract()?,
-                })
-            };
-            run().map_err(|err| BridgeError::python(py, &err))
+        self.call_dict("cnfmp.data.hdf5", "read_demo", (file.to_path_buf(), demo.to_owned(), camera), |dict| {
+            Ok(Hdf5Demo {
+                images: item(dict, "images")?.extract::<PyReadonlyArray4<u8>>()?.as_array().to_owned(),
+                masks: item(dict, "masks")?.extract::<PyReadonlyArray2<u8>>()?.as_array().to_owned(),
+                objects: item(dict, "objects")?.extract()?,
+                position: matrix(dict, "position")?,
+                orientation: matrix(dict, "orientation")?,
+                gripper: vector(dict, "gripper")?,
+                prompt: item(dict, "prompt")?.extract()?,
+            })
         })
     }
 }

@@ -4,13 +4,12 @@
 use std::path::Path;
 
 use numpy::ndarray::{Array1, Array2};
-use numpy::IntoPyArray;
+use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{item, matrix, vector};
 use crate::error::BridgeError;
 use crate::worker::Bridge;
 
@@ -76,6 +75,32 @@ pub struct DatasetReport {
     pub episodes_per_second: f64,
 }
 
+/// `dict[key]`, or a KeyError naming it (for the calls that return dicts of arrays).
+pub(crate) fn item<'py>(dict: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+    dict.get_item(key)?.ok_or_else(|| pyo3::exceptions::PyKeyError::new_err(key.to_owned()))
+}
+
+pub(crate) fn vector(dict: &Bound<'_, PyDict>, key: &str) -> PyResult<Array1<f64>> {
+    Ok(item(dict, key)?.extract::<PyReadonlyArray1<f64>>()?.as_array().to_owned())
+}
+
+pub(crate) fn matrix(dict: &Bound<'_, PyDict>, key: &str) -> PyResult<Array2<f64>> {
+    Ok(item(dict, key)?.extract::<PyReadonlyArray2<f64>>()?.as_array().to_owned())
+}
+
+impl TrajectoryArrays {
+    /// Reads `{"fps", "t", "position", "orientation", "gripper"}` from a Python dict.
+    pub(crate) fn from_dict(dict: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Ok(TrajectoryArrays {
+            fps: item(dict, "fps")?.extract()?,
+            t: vector(dict, "t")?,
+            position: matrix(dict, "position")?,
+            orientation: matrix(dict, "orientation")?,
+            gripper: vector(dict, "gripper")?,
+        })
+    }
+}
+
 impl Bridge {
     /// Calls `module.function(*args)`, which returns a JSON string, and decodes it.
     pub(crate) fn call_json<T, A>(&self, module: &'static str, function: &'static str, args: A) -> Result<T, BridgeError>
@@ -88,6 +113,23 @@ impl Bridge {
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
         serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("{module}.{function}: {err}")))
+    }
+
+    /// Calls `module.function(*args)`, which returns a dict (of arrays), and reads the
+    /// result from it with `read` on the Python thread.
+    pub(crate) fn call_dict<T, A, F>(&self, module: &'static str, function: &'static str, args: A, read: F) -> Result<T, BridgeError>
+    where
+        T: Send + 'static,
+        A: for<'py> pyo3::call::PyCallArgs<'py> + Send + 'static,
+        F: for<'py> FnOnce(&Bound<'py, PyDict>) -> PyResult<T> + Send + 'static,
+    {
+        self.call(move |py| {
+            let run = || -> PyResult<T> {
+                let result = py.import(module)?.call_method1(function, args)?;
+                read(result.cast::<PyDict>()?)
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })
     }
 
     /// The benchmark tasks (`cnfmp.sim.api.tasks_json`).
@@ -112,21 +154,8 @@ impl Bridge {
 
     /// The scripted expert's trajectory for (task, seed), at the control rate, and the prompt.
     pub fn sim_expert(&self, task: &str, seed: u64) -> Result<(TrajectoryArrays, String), BridgeError> {
-        let task = task.to_owned();
-        self.call(move |py| {
-            let run = || -> PyResult<(TrajectoryArrays, String)> {
-                let result = py.import("cnfmp.sim.api")?.call_method1("expert", (task, seed))?;
-                let dict = result.cast::<PyDict>()?;
-                let arrays = TrajectoryArrays {
-                    fps: item(dict, "fps")?.extract()?,
-                    t: vector(dict, "t")?,
-                    position: matrix(dict, "position")?,
-                    orientation: matrix(dict, "orientation")?,
-                    gripper: vector(dict, "gripper")?,
-                };
-                Ok((arrays, item(dict, "prompt")?.extract()?))
-            };
-            run().map_err(|err| BridgeError::python(py, &err))
+        self.call_dict("cnfmp.sim.api", "expert", (task.to_owned(), seed), |dict| {
+            Ok((TrajectoryArrays::from_dict(dict)?, item(dict, "prompt")?.extract()?))
         })
     }
 

@@ -23,7 +23,7 @@ pub(super) fn export(options: &ConvertOptions, start: Instant) -> Result<Convert
     {
         return Err(Failure::BadInput(format!("--fps {fps} differs from the dataset's {} fps; an export keeps the dataset's frames as they are", episodes.fps)));
     }
-    let plan = Plan { source: options.source.describe(), to: Target::Raw, fps: episodes.fps.round() as u32, episodes: episodes.names };
+    let plan = Plan { source: options.source.describe(), to: Target::Raw, fps: episodes.fps.round() as u32, episodes: episodes.names.clone() };
     let staging = Staging::open(&options.out, &plan)?;
     let stage_one = |index: usize, work: &Path| -> Result<(), EpisodeError> {
         let bad = |reason: String| EpisodeError::Bad(BadEpisode { episode: plan.episodes[index].clone(), file: format!("{}#episode{index}", dataset.display()), reason });
@@ -39,17 +39,12 @@ pub(super) fn export(options: &ConvertOptions, start: Instant) -> Result<Convert
             .map_err(|err| EpisodeError::Fatal(Failure::Environment(format!("cannot write {}: {err}", work.display()))))
     };
     let outcome = stage_all(&staging, &plan, options.workers, options.strict, &stage_one)?;
-    let converted = staging.move_staged_to_output(&plan)?;
-    let mut frames = 0;
-    for name in &plan.episodes {
-        let path = staging.output_dir().join(name).join("trajectory.json");
-        if path.exists() {
-            frames += Trajectory::load(&path)?.frames.len() as u64;
-        }
-    }
-    if converted == 0 {
+    let moved = staging.move_staged_to_output(&plan)?;
+    if moved.is_empty() {
         return Err(no_episode_converted(&outcome.skipped));
     }
+    let frames = moved.iter().map(|&k| episodes.lengths[k]).sum();
+    let converted = moved.len() as u64;
     let report = finish_report(options, &plan, outcome.resumed, converted, frames, outcome.skipped, start);
     staging.publish(&report, &options.out)?;
     Ok(report)

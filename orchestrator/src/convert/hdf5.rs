@@ -9,16 +9,10 @@ use segmenter_bridge::ndarray::{Array1, Axis};
 use serde_json::Map;
 
 use super::{BadEpisode, EpisodeError, SourceEpisode};
-use crate::failure::Failure;
 use crate::images::Image;
 use crate::trajectory::Trajectory;
 
-/// The demos of `file`, with its frame rate and camera.
-pub fn list(bridge: &Bridge, file: &Path) -> Result<Hdf5Listing, Failure> {
-    Ok(bridge.hdf5_demos(file)?)
-}
-
-/// Reads demo `demo` (recorded at `fps` Hz) from `file` through the bridge.
+/// Reads demo `demo` of `file` (listed in `listing`, which gives its rate and camera) through the bridge.
 pub fn read_episode(bridge: &Bridge, file: &Path, demo: &str, listing: &Hdf5Listing) -> Result<SourceEpisode, EpisodeError> {
     let bad = |reason: String| EpisodeError::Bad(BadEpisode { episode: demo.to_owned(), file: format!("{}:data/{demo}", file.display()), reason });
     let data = match bridge.hdf5_demo(file, demo, listing.camera.clone()) {

@@ -181,15 +181,21 @@ pub fn convert(options: &ConvertOptions) -> Result<ConvertReport, Failure> {
 
 fn to_lerobot(options: &ConvertOptions, start: Instant) -> Result<ConvertReport, Failure> {
     let bridge = Bridge::start_default()?;
-    let (episodes, recorded_fps, listing) = match &options.source {
+    // What is read per episode: a raw folder, or a demo of the HDF5 file as listed.
+    enum Reader<'a> {
+        Raw(&'a Path),
+        Hdf5(&'a Path, segmenter_bridge::Hdf5Listing),
+    }
+    let (reader, episodes, recorded_fps) = match &options.source {
         Source::Raw(dir) => {
             let names = raw::list_episodes(dir).map_err(Failure::BadInput)?;
             let fps = names.first().and_then(|first| raw::recorded_fps(&dir.join(first)));
-            (names, fps, None)
+            (Reader::Raw(dir), names, fps)
         }
         Source::Hdf5(file) => {
-            let listing = hdf5::list(bridge, file)?;
-            (listing.demos.clone(), Some(listing.fps), Some(listing))
+            let listing = bridge.hdf5_demos(file)?;
+            let (names, fps) = (listing.demos.clone(), Some(listing.fps));
+            (Reader::Hdf5(file, listing), names, fps)
         }
         Source::Lerobot(_) => unreachable!("handled by export"),
     };
@@ -207,10 +213,9 @@ fn to_lerobot(options: &ConvertOptions, start: Instant) -> Result<ConvertReport,
     let staging = Staging::open(&options.out, &plan)?;
     let stage_one = |index: usize, work: &Path| -> Result<(), EpisodeError> {
         let name = &plan.episodes[index];
-        let episode = match (&options.source, &listing) {
-            (Source::Raw(dir), _) => raw::read_episode(&dir.join(name), name)?,
-            (Source::Hdf5(file), Some(listing)) => hdf5::read_episode(bridge, file, name, listing)?,
-            _ => unreachable!("sources are listed above"),
+        let episode = match &reader {
+            Reader::Raw(dir) => raw::read_episode(&dir.join(name), name)?,
+            Reader::Hdf5(file, listing) => hdf5::read_episode(bridge, file, name, listing)?,
         };
         stage_episode(&episode, fps, work)
     };

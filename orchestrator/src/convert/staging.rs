@@ -105,16 +105,17 @@ impl Staging {
         self.root.join("output")
     }
 
-    /// Moves the staged episode folders into the output under their names (raw export).
-    pub fn move_staged_to_output(&self, plan: &Plan) -> Result<u64, Failure> {
+    /// Moves the staged episode folders into the output under their names (raw export) and
+    /// returns the indices of the episodes moved.
+    pub fn move_staged_to_output(&self, plan: &Plan) -> Result<Vec<usize>, Failure> {
         let output = self.output_dir();
         std::fs::create_dir_all(&output).map_err(|err| io_failure("create", &output, err))?;
-        let mut moved = 0;
+        let mut moved = Vec::new();
         for (k, name) in plan.episodes.iter().enumerate() {
             let staged = self.staged(k);
             if staged.is_dir() {
                 std::fs::rename(&staged, output.join(name)).map_err(|err| io_failure("move", &staged, err))?;
-                moved += 1;
+                moved.push(k);
             }
         }
         Ok(moved)

@@ -140,7 +140,8 @@ def _open(dataset_dir: str):
 
 
 def episodes_of(dataset_dir: str) -> str:
-    """JSON ``{"episodes": E, "fps": F, "names": [name per episode]}`` of a LeRobot dataset.
+    """JSON ``{"episodes": E, "fps": F, "names": [name per episode], "lengths": [frames per
+    episode]}`` of a LeRobot dataset.
 
     The name is the one the episode had when it was converted (``annotation.scene``), else
     ``episode_<index>``.
@@ -154,7 +155,8 @@ def episodes_of(dataset_dir: str) -> str:
         names.append(str(scene.get("episode") or f"episode_{k:06d}"))
     if len(set(names)) != len(names):  # recorded names clash: fall back to indices
         names = [f"episode_{k:06d}" for k in range(len(names))]
-    return json.dumps({"episodes": len(names), "fps": float(dataset.fps), "names": names})
+    lengths = [int(end) - int(start) for start, end in zip(starts, dataset.meta.episodes["dataset_to_index"])]
+    return json.dumps({"episodes": len(names), "fps": float(dataset.fps), "names": names, "lengths": lengths})
 
 
 def export_episode(dataset_dir: str, index: int, out_dir: str) -> dict:
