@@ -31,3 +31,35 @@ pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), Failure> {
     temp.persist(path).map_err(|err| fail("replace", err.error))?;
     Ok(())
 }
+
+/// Creates the directory `path` (which must not exist, or be empty) holding `files` (name,
+/// contents): written into a hidden sibling, then renamed, so the directory appears complete
+/// or not at all.
+pub fn write_directory_atomically(path: &Path, files: &[(String, Vec<u8>)]) -> Result<(), Failure> {
+    let fail = |what: &str, err: std::io::Error| Failure::BadInput(format!("cannot {what} {}: {err}", path.display()));
+    if path.exists() && (!path.is_dir() || std::fs::read_dir(path).map_err(|err| fail("read", err))?.next().is_some()) {
+        return Err(Failure::BadInput(format!("{} already exists and is not an empty directory; choose a new --out", path.display())));
+    }
+    let parent = match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir,
+        _ => Path::new("."),
+    };
+    std::fs::create_dir_all(parent).map_err(|err| fail("create the parent of", err))?;
+    let staging = tempfile::Builder::new()
+        .prefix(".cnfmp-")
+        .tempdir_in(parent)
+        .map_err(|err| fail("create a temporary directory beside", err))?;
+    for (name, contents) in files {
+        std::fs::write(staging.path().join(name), contents).map_err(|err| fail(&format!("write {name} for"), err))?;
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(staging.path(), std::fs::Permissions::from_mode(0o755)).map_err(|err| fail("set permissions of", err))?;
+    }
+    if path.is_dir() {
+        std::fs::remove_dir(path).map_err(|err| fail("replace the empty directory", err))?;
+    }
+    std::fs::rename(staging.keep(), path).map_err(|err| fail("create", err))?;
+    Ok(())
+}

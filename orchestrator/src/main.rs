@@ -4,7 +4,7 @@
 
 use clap::{Parser, Subcommand};
 
-use cnfmp::commands::{self, dataset::DatasetCommand, model, sim::SimCommand, trajectory::TrajectoryCommand};
+use cnfmp::commands::{self, dataset::DatasetCommand, model, segment::SegmenterCommand, sim::SimCommand, trajectory::TrajectoryCommand};
 
 /// Compositional Neural Field Movement Primitives: scene image + prompt -> robot trajectory.
 #[derive(Debug, Parser)]
@@ -33,7 +33,12 @@ enum Command {
     Dataset(DatasetCommand),
     /// Train a compositional NF-MP model on a LeRobot dataset (progress on stderr).
     Train(model::TrainArgs),
-    /// Predict a trajectory from a scene image, its coarse masks and the object names.
+    /// Find the objects a prompt names in an image: per-object masks, a label map, an overlay, JSON.
+    Segment(commands::segment::SegmentArgs),
+    /// The language segmenter's film backend: train it on simulator renders, evaluate any backend.
+    #[command(subcommand)]
+    Segmenter(SegmenterCommand),
+    /// Predict a trajectory from a scene image and its coarse masks, or from a prompt.
     Predict(model::PredictArgs),
     /// Evaluate a model on held-out simulator scenes: MED against the expert and success by physics.
     Eval(model::EvalArgs),
@@ -47,6 +52,8 @@ fn main() {
         Command::Sim(command) => commands::sim::run(command),
         Command::Dataset(command) => commands::dataset::run(command),
         Command::Train(args) => model::train(args),
+        Command::Segment(args) => commands::segment::segment(args),
+        Command::Segmenter(command) => commands::segment::run(command),
         Command::Predict(args) => model::predict(args),
         Command::Eval(args) => model::eval(args),
     };

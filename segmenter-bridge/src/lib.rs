@@ -21,6 +21,7 @@ mod core;
 mod dataset;
 mod error;
 mod interpreter;
+mod segment;
 mod sim;
 mod worker;
 
@@ -32,6 +33,7 @@ pub use dataset::{DatasetCheck, DatasetEpisodes, DatasetInspection, Hdf5Demo, Hd
 pub use core::{ModelInfo, ObjectEstimate, Prediction, TrainLosses, TrainReport, TrainRequest};
 pub use error::{BridgeError, PythonException, TRACEBACK_FRAMES};
 pub use interpreter::BridgeConfig;
+pub use segment::{SegmentDocument, SegmentRequest, SegmentedObject, Segmentation, SegmenterTrainRequest, SlotAssignment};
 pub use sim::{DatasetReport, ExecutionReport, SceneInfo, TaskInfo, TrajectoryArrays};
 /// The ndarray version the bridge's array calls use.
 pub use numpy::ndarray;

@@ -3,6 +3,7 @@
 pub mod dataset;
 pub mod doctor;
 pub mod model;
+pub mod segment;
 pub mod sim;
 pub mod trajectory;
 

@@ -15,6 +15,7 @@ use serde::Serialize;
 use serde_json::{Map, Value};
 
 use super::print_stdout;
+use super::segment::{BackendArgs, describe, run_segmenter};
 use crate::failure::Failure;
 use crate::files::write_atomically;
 use crate::trajectory::Trajectory;
@@ -54,12 +55,19 @@ pub struct PredictArgs {
     #[arg(long)]
     image: PathBuf,
     /// Coarse masks: an 8-bit label map of the image's size (0 background, k the k-th object).
-    #[arg(long)]
-    masks: PathBuf,
+    /// Without masks, --prompt is segmented instead.
+    #[arg(long, requires = "objects", conflicts_with = "prompt", required_unless_present = "prompt")]
+    masks: Option<PathBuf>,
     /// Object names in label order: a JSON list, or an object with an "objects" list (the
-    /// objects.json `cnfmp sim render` writes).
+    /// objects.json `cnfmp sim render` and `cnfmp segment` write).
+    #[arg(long, requires = "masks")]
+    objects: Option<PathBuf>,
+    /// Find the objects with the language segmenter: its phrases fill the model's object
+    /// slots by role (e.g. target, destination), e.g. "put the red ball in the box".
     #[arg(long)]
-    objects: PathBuf,
+    prompt: Option<String>,
+    #[command(flatten)]
+    segmenter: BackendArgs,
     /// Output trajectory JSON (replaced atomically), with the inferred weights and confidences.
     #[arg(long)]
     out: PathBuf,
@@ -146,6 +154,17 @@ fn read_objects(path: &Path) -> Result<Vec<String>, Failure> {
     })
 }
 
+/// The task a model directory was trained on (its config.json's "task").
+fn model_task(model: &Path) -> Result<String, Failure> {
+    let config_path = model.join("config.json");
+    require_file(&config_path, "model config")?;
+    let text = fs::read_to_string(&config_path)
+        .map_err(|err| Failure::BadInput(format!("cannot read {}: {err}", config_path.display())))?;
+    let config: Value = serde_json::from_str(&text)
+        .map_err(|err| Failure::BadInput(format!("{} is not JSON: {err}", config_path.display())))?;
+    Ok(config.get("task").and_then(Value::as_str).unwrap_or_default().to_owned())
+}
+
 fn read_bytes(path: &Path, what: &str) -> Result<Vec<u8>, Failure> {
     fs::read(path)
         .map_err(|err| Failure::BadInput(format!("cannot read {what} {}: {err}", path.display())))
@@ -172,10 +191,26 @@ fn describe_objects(objects: &[ObjectEstimate]) -> String {
 
 pub fn predict(args: PredictArgs) -> Result<(), Failure> {
     let image = read_bytes(&args.image, "image")?;
-    let masks = read_bytes(&args.masks, "masks")?;
-    let objects = read_objects(&args.objects)?;
-    let prediction = Bridge::start_default()?.core_predict(&args.model, image, masks, objects)?;
-    let trajectory = trajectory_of(&prediction)?;
+    let (prediction, segmentation) = match (&args.masks, &args.objects, &args.prompt) {
+        (Some(masks), Some(objects), None) => {
+            let (masks, objects) = (read_bytes(masks, "masks")?, read_objects(objects)?);
+            (Bridge::start_default()?.core_predict(&args.model, image, masks, objects)?, None)
+        }
+        (None, None, Some(prompt)) => {
+            let task = model_task(&args.model)?;
+            let bridge = Bridge::start_default()?;
+            let found = run_segmenter(&bridge, image.clone(), prompt, &args.segmenter, Some(&task))?;
+            eprintln!("segmented by {}:\n{}", found.document.backend, describe(&found));
+            let prediction = bridge.core_predict(&args.model, image, found.labels_png.clone(), found.slot_names.clone())?;
+            (prediction, Some(found))
+        }
+        _ => return Err(Failure::BadInput("give either --masks and --objects, or --prompt".into())),
+    };
+    let mut trajectory = trajectory_of(&prediction)?;
+    if let Some(found) = segmentation {
+        let document = serde_json::to_value(&found.document).expect("segmentation serialises");
+        trajectory.metadata.insert("segmentation".into(), document);
+    }
     write_atomically(&args.out, trajectory.to_json_string().as_bytes())?;
     let total = prediction
         .timings_ms
@@ -254,16 +289,7 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
             HELDOUT_SEED_END - 1
         )));
     }
-    let config_path = args.model.join("config.json");
-    require_file(&config_path, "model config")?;
-    let config: Value = serde_json::from_str(&fs::read_to_string(&config_path).map_err(|err| {
-        Failure::BadInput(format!("cannot read {}: {err}", config_path.display()))
-    })?)
-    .map_err(|err| Failure::BadInput(format!("{} is not JSON: {err}", config_path.display())))?;
-    let model_task = config
-        .get("task")
-        .and_then(Value::as_str)
-        .unwrap_or_default();
+    let model_task = model_task(&args.model)?;
     if model_task != args.task {
         return Err(Failure::BadInput(format!(
             "the model at {} was trained on {model_task}, not {}",

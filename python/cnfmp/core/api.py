@@ -6,24 +6,19 @@ an evaluation loop pays for loading once. Bad input raises :class:`cnfmp.errors.
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import time
-
-import numpy as np
 
 from cnfmp.core import training
 from cnfmp.core.inference import Predictor
 from cnfmp.core.modeling_cnfmp import CONFIG_FILE, WEIGHTS_FILE, load_model
 from cnfmp.errors import InputError
+from cnfmp.images import decode_image, decode_labels
 
-__all__ = ["decode_image", "decode_labels", "predict", "train"]
+__all__ = ["predict", "train"]
 
 _LOADED: dict[str, tuple[tuple, Predictor]] = {}
-
-#: Largest image side accepted (px); the fields work at 64 px, so anything larger is waste.
-MAX_IMAGE_SIDE = 4096
 
 
 def train(dataset_dir: str, out_dir: str, config_path: str | None, steps: int | None, seed: int | None,
@@ -44,35 +39,6 @@ def predictor(model_dir: str) -> Predictor:
     if cached is None or cached[0] != key or key is None:
         _LOADED[model_dir] = (key, Predictor(load_model(model_dir)))
     return _LOADED[model_dir][1]
-
-
-def _open_image(data: bytes, what: str):
-    from PIL import Image, UnidentifiedImageError
-
-    if not data:
-        raise InputError(f"{what} is empty")
-    try:
-        image = Image.open(io.BytesIO(data))
-        if max(image.size) > MAX_IMAGE_SIDE or min(image.size) < 1:
-            raise InputError(f"{what} is {image.size[0]}x{image.size[1]}; sides must be 1..{MAX_IMAGE_SIDE} px")
-        image.load()
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as err:
-        raise InputError(f"{what} is not a readable image: {err}") from err
-    return image
-
-
-def decode_image(data: bytes, what: str = "image") -> np.ndarray:
-    """Encoded image bytes (PNG, JPEG, ...) -> (H, W, 3) uint8 RGB."""
-    return np.asarray(_open_image(data, what).convert("RGB"))
-
-
-def decode_labels(data: bytes, what: str = "masks") -> np.ndarray:
-    """An 8-bit single-channel label map (PNG) -> (H, W) uint8."""
-    image = _open_image(data, what)
-    if image.mode not in ("L", "P"):
-        raise InputError(f"{what} must be an 8-bit single-channel label map (0 background, k the k-th object), "
-                         f"got image mode {image.mode}")
-    return np.asarray(image, dtype=np.uint8)
 
 
 def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[str], seed: int = 0) -> str:

@@ -11,14 +11,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 import sys
-import tempfile
 import time
 
 import numpy as np
 import torch
 
+from cnfmp.artifacts import publish_directory
 from cnfmp.core import data as core_data
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.modeling_cnfmp import (CARD_FILE, CnfmpModel, pixel_coords, save_model, time_basis,
@@ -241,21 +240,12 @@ def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps:
     if log:
         log(f"training on {len(demos)} {demos.task} demonstrations from {dataset_dir}, {config.steps} steps, seed {config.seed}")
     model, summary = train_model(demos, config, log)
-    parent = os.path.dirname(os.path.abspath(out_dir))
-    os.makedirs(parent, exist_ok=True)
-    staging = tempfile.mkdtemp(prefix=".cnfmp-model-", dir=parent)
-    try:
+    def fill(staging: str) -> None:
         save_model(model, staging)
         with open(os.path.join(staging, CARD_FILE), "w", encoding="utf-8") as f:
             f.write(model_card(model.config, summary, dataset_dir, demos, command))
-        # mkdtemp makes a private directory; a model is an ordinary, shareable artifact.
-        os.chmod(staging, 0o755)
-        for name in os.listdir(staging):
-            os.chmod(os.path.join(staging, name), 0o644)
-        os.rename(staging, out_dir)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
+
+    publish_directory(out_dir, fill)
     return json.dumps({"out": out_dir, "task": demos.task, **summary})
 
 

@@ -1,0 +1,121 @@
+"""Language-conditioned segmentation: a prompt and a scene image -> one coarse mask per object
+the prompt names, with its role, score, bounding box and centroid.
+
+    from cnfmp.segmenter import segment
+    result = segment(image, "put the red ball in the box")   # image: (H, W, 3) uint8 RGB
+    result.labels            # (H, W) uint8: 0 background, k the k-th phrase
+    [p.role for p in result.phrases]   # ["target", "destination"]
+
+The prompt is parsed into phrases (:mod:`.phrases`), a backend (:mod:`.base`) grounds each
+phrase as a probability map, and the shared OpenCV chain (:mod:`.postprocess`) extracts the
+masks. A prompt naming nothing in the vocabulary is grounded as a whole; what cannot be
+found is reported as not found, with its (low) score.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cnfmp.errors import InputError
+from cnfmp.segmenter import phrases as _phrases
+from cnfmp.segmenter.base import Backend, load_backend
+from cnfmp.segmenter.postprocess import ObjectMask, extract, label_map
+
+#: Smallest image side accepted (px): below it there is nothing to segment.
+MIN_IMAGE_SIDE = 8
+
+
+@dataclass
+class Segmentation:
+    """What :func:`segment` found. ``phrases[k]`` owns ``results[k]`` and label k+1 of
+    ``labels``; ``probabilities`` is (P, H, W) float32; ``timings_ms`` per stage."""
+
+    prompt: str
+    backend: str
+    phrases: list[_phrases.Phrase]
+    results: list[ObjectMask]
+    probabilities: np.ndarray
+    labels: np.ndarray
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    def objects(self) -> list[dict]:
+        """Per phrase: phrase, role, category, colour, found, score, area (px), bbox [x0, y0,
+        x1, y1) and centroid [x, y] (px), label."""
+        return [{"phrase": p.text, "role": p.role, "category": p.category, "colour": p.colour,
+                 "found": r.found, "score": round(r.score, 4), "area": r.area, "bbox": r.bbox,
+                 "centroid": None if r.centroid is None else [round(v, 2) for v in r.centroid],
+                 "label": k + 1}
+                for k, (p, r) in enumerate(zip(self.phrases, self.results))]
+
+    def to_dict(self) -> dict:
+        found = sum(r.found for r in self.results)
+        return {"prompt": self.prompt, "backend": self.backend, "image_size": list(self.labels.shape),
+                "found": found, "nothing_found": found == 0, "objects": self.objects(),
+                "timings_ms": {k: round(v, 3) for k, v in self.timings_ms.items()}}
+
+
+def check_image(image: np.ndarray) -> np.ndarray:
+    """`image` as (H, W, 3) uint8, or an InputError naming what is wrong with it."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise InputError(f"the image must be (H, W, 3) uint8 RGB, got shape {image.shape} and dtype {image.dtype}")
+    if min(image.shape[:2]) < MIN_IMAGE_SIDE:
+        raise InputError(f"the image is {image.shape[1]}x{image.shape[0]} px; each side must be at least "
+                         f"{MIN_IMAGE_SIDE} px")
+    return image
+
+
+def segment(image: np.ndarray, prompt: str, backend: Backend | str = "auto") -> Segmentation:
+    """Masks for the objects `prompt` names in `image` ((H, W, 3) uint8 RGB).
+
+    Raises InputError for an empty or overlong prompt or a malformed image; an image where
+    nothing matches (a black frame, "the unicorn") is a result with ``found == 0``.
+    """
+    started = time.perf_counter()
+    image = check_image(image)
+    found = _phrases.parse(prompt)
+    if not found:  # nothing from the vocabulary: let the backend try the prompt as a whole
+        text = _phrases.check_prompt(prompt)
+        found = [_phrases.Phrase(text, "unknown", None, None, (0, len(text)))]
+    backend = load_backend(backend) if isinstance(backend, str) else backend
+    parsed = time.perf_counter()
+    probabilities = backend.probabilities(image, [p.text for p in found])
+    grounded = time.perf_counter()
+    results = [extract(p, backend.postprocess) for p in probabilities]
+    labels = label_map(probabilities, results)
+    done = time.perf_counter()
+    timings = {"parse": 1e3 * (parsed - started), "ground": 1e3 * (grounded - parsed),
+               "postprocess": 1e3 * (done - grounded), "total": 1e3 * (done - started)}
+    return Segmentation(_phrases.check_prompt(prompt), backend.name, found, results, probabilities, labels, timings)
+
+
+def order_by_roles(segmentation: Segmentation, task: str) -> list[int]:
+    """For a model of `task`, the phrase index that fills each object slot: slot k takes the
+    first phrase whose role is the task's k-th role (``task_roles`` in prompts/vocabulary.json).
+
+    Raises InputError when the task has no roles on record or the prompt lacks one, or when
+    a needed object was not found in the image.
+    """
+    roles = _phrases.vocabulary()["task_roles"].get(task)
+    if roles is None:
+        known = ", ".join(sorted(_phrases.vocabulary()["task_roles"]))
+        raise InputError(f"prompts cannot yet be mapped onto {task} models (roles are known for {known}); "
+                         "pass coarse masks instead")
+    order = []
+    for role in roles:
+        index = next((k for k, p in enumerate(segmentation.phrases) if p.role == role), None)
+        if index is None:
+            named = ", ".join(f"{p.text!r} ({p.role})" for p in segmentation.phrases)
+            raise InputError(f"a {task} model needs a {role} in the prompt ({' and '.join(roles)}); "
+                             f"the prompt names {named}")
+        if not segmentation.results[index].found:
+            raise InputError(f"the {role} {segmentation.phrases[index].text!r} was not found in the image "
+                             f"(best score {segmentation.results[index].score:.2f})")
+        order.append(index)
+    return order
+
+
+__all__ = ["Segmentation", "check_image", "order_by_roles", "segment"]

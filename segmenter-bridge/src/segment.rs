@@ -1,0 +1,154 @@
+//! Typed calls into the language-conditioned segmenter (`cnfmp.segmenter.api`): segment a
+//! scene image for a prompt, train the `film` backend, evaluate a backend on held-out renders.
+
+use std::path::PathBuf;
+
+use pyo3::prelude::*;
+use pyo3::types::PyBytes;
+use serde::{Deserialize, Serialize};
+
+use crate::error::BridgeError;
+use crate::sim::item;
+use crate::worker::Bridge;
+
+/// What `cnfmp segment` (and prediction from a prompt) asks for.
+#[derive(Debug, Clone)]
+pub struct SegmentRequest {
+    /// The encoded scene image (PNG, JPEG, ...).
+    pub image: Vec<u8>,
+    pub prompt: String,
+    /// auto | film | clipseg | owlv2-sam | color.
+    pub backend: String,
+    /// Weights directory of the backend (default: its own default location).
+    pub weights: Option<PathBuf>,
+    /// Order the label map for a core model of this task (label k = its k-th object slot).
+    pub task: Option<String>,
+}
+
+/// One phrase of the prompt and what was found for it.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct SegmentedObject {
+    pub phrase: String,
+    /// target | destination | obstacle | object | unknown.
+    pub role: String,
+    pub category: Option<String>,
+    pub colour: Option<String>,
+    pub found: bool,
+    /// Mean mask probability in [0, 1] (the peak probability when nothing was found).
+    pub score: f64,
+    /// Mask area (px).
+    pub area: u64,
+    /// [x0, y0, x1, y1) in pixels.
+    pub bbox: Option<[u32; 4]>,
+    /// [x, y] in pixels.
+    pub centroid: Option<[f64; 2]>,
+    /// Label of this phrase in the unordered label map (1-based).
+    pub label: u32,
+}
+
+/// Which phrase fills a model's object slot.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct SlotAssignment {
+    pub slot: u32,
+    pub label: u32,
+    pub role: String,
+    pub phrase: String,
+}
+
+/// The JSON document of a segmentation.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SegmentDocument {
+    pub prompt: String,
+    pub backend: String,
+    /// [height, width] (px).
+    pub image_size: [u32; 2],
+    pub found: u32,
+    pub nothing_found: bool,
+    pub objects: Vec<SegmentedObject>,
+    /// Only when a task was given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slots: Option<Vec<SlotAssignment>>,
+    /// Stage timings (ms): parse, ground, postprocess, total.
+    pub timings_ms: serde_json::Map<String, serde_json::Value>,
+}
+
+/// A segmentation with its pictures.
+#[derive(Debug, Clone)]
+pub struct Segmentation {
+    pub document: SegmentDocument,
+    /// 8-bit label map PNG (slot order when a task was given, phrase order otherwise).
+    pub labels_png: Vec<u8>,
+    /// One 0/255 mask PNG per phrase, in phrase order.
+    pub mask_pngs: Vec<Vec<u8>>,
+    /// The image with the masks drawn on it (PNG).
+    pub overlay_png: Vec<u8>,
+    /// The phrases in label-map order (the object names a core model gets).
+    pub slot_names: Vec<String>,
+}
+
+/// What `cnfmp segmenter train` asks for.
+#[derive(Debug, Clone)]
+pub struct SegmenterTrainRequest {
+    pub out: PathBuf,
+    pub config: Option<PathBuf>,
+    pub steps: Option<u64>,
+    pub seed: Option<u64>,
+    /// Multiplies every task's number of training scenes.
+    pub scenes_scale: Option<f64>,
+    /// The command line, recorded in the card.
+    pub command: String,
+}
+
+impl Bridge {
+    /// Segments `request.image` for `request.prompt` (`cnfmp.segmenter.api.segment`).
+    pub fn segment(&self, request: SegmentRequest) -> Result<Segmentation, BridgeError> {
+        let (document, labels_png, mask_pngs, overlay_png, slot_names) = self.call(move |py| {
+            let run = || -> PyResult<_> {
+                let args = (
+                    PyBytes::new(py, &request.image),
+                    request.prompt,
+                    request.backend,
+                    request.weights,
+                    request.task,
+                );
+                let result = py.import("cnfmp.segmenter.api")?.call_method1("segment", args)?;
+                let dict = result.cast::<pyo3::types::PyDict>()?;
+                Ok((
+                    item(dict, "json")?.extract::<String>()?,
+                    item(dict, "labels_png")?.extract::<Vec<u8>>()?,
+                    item(dict, "mask_pngs")?.extract::<Vec<Vec<u8>>>()?,
+                    item(dict, "overlay_png")?.extract::<Vec<u8>>()?,
+                    item(dict, "slot_names")?.extract::<Vec<String>>()?,
+                ))
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })?;
+        let document = serde_json::from_str(&document)
+            .map_err(|err| BridgeError::Protocol(format!("cnfmp.segmenter.api.segment: {err}")))?;
+        Ok(Segmentation { document, labels_png, mask_pngs, overlay_png, slot_names })
+    }
+
+    /// Trains the film segmenter (`cnfmp.segmenter.api.train`); progress on stderr. Returns
+    /// the summary JSON.
+    pub fn segmenter_train(&self, request: SegmenterTrainRequest) -> Result<serde_json::Value, BridgeError> {
+        let r = request;
+        self.call_json("cnfmp.segmenter.api", "train", (r.out, r.config, r.steps, r.seed, r.scenes_scale, r.command))
+    }
+
+    /// Evaluates a backend on held-out renders (`cnfmp.segmenter.api.evaluate`); progress on
+    /// stderr. Returns the report JSON (mean IoU per split, rejection rate, latency, per scene).
+    pub fn segmenter_eval(
+        &self,
+        task: &str,
+        episodes: u64,
+        seed_start: u64,
+        backend: &str,
+        weights: Option<PathBuf>,
+    ) -> Result<serde_json::Value, BridgeError> {
+        self.call_json(
+            "cnfmp.segmenter.api",
+            "evaluate",
+            (task.to_owned(), episodes, seed_start, backend.to_owned(), weights),
+        )
+    }
+}
