@@ -10,6 +10,8 @@ import json
 import os
 import time
 
+import numpy as np
+
 from cnfmp.core import training
 from cnfmp.core.inference import Predictor
 from cnfmp.core.modeling_cnfmp import CONFIG_FILE, WEIGHTS_FILE, load_model
@@ -63,6 +65,8 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
                          "name every labelled object, in label order")
     model = predictor(model_dir)
     c = model.config
+    if c.task_objects:  # distractors are background to this model
+        labels, objects = np.where(labels > c.task_objects, 0, labels).astype(np.uint8), list(objects)[:c.task_objects]
     if len(objects) > c.num_objects:
         raise InputError(f"{len(objects)} objects given but the model ({c.task}) has {c.num_objects} object slot(s): "
                          f"{', '.join(c.object_names)}")

@@ -25,6 +25,10 @@ class CnfmpConfig:
     #: Object slots, in label order (label k of a mask = slot k-1). A scene may leave trailing
     #: slots empty (e.g. two cups of at most three); the slot then uses a learned "absent" latent.
     num_objects: int = 0
+    #: Use only the first N labelled objects of every scene, the ones the task is about (the
+    #: named object and place of language_pick_place); later labels (distractors) count as
+    #: background, in training and in prediction. 0 = every labelled object gets a slot.
+    task_objects: int = 0
     #: Object names of the first demonstration, per slot (for cards and listings).
     object_names: list[str] = field(default_factory=list)
     #: Whether each slot was ever empty in training (an empty slot is only accepted then).
@@ -205,5 +209,7 @@ class CnfmpConfig:
         for name in ["learning_rate", "latent_learning_rate", "output_fps"]:
             if not getattr(self, name) > 0:
                 raise InputError(f"{source}: {name} must be > 0, got {getattr(self, name)!r}")
+        if not isinstance(self.task_objects, int) or self.task_objects < 0:
+            raise InputError(f"{source}: task_objects must be a whole number >= 0, got {self.task_objects!r}")
         if not 0.0 <= self.anneal_fraction <= 1.0:
             raise InputError(f"{source}: anneal_fraction must be in [0, 1], got {self.anneal_fraction!r}")

@@ -8,6 +8,8 @@ by training and prediction so both see identical preprocessing.
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 from dataclasses import dataclass
 
@@ -82,6 +84,12 @@ def load_demonstrations(dataset_dir: str) -> Demonstrations:
         raise InputError(f"{dataset_dir}: episodes of several tasks ({', '.join(sorted(tasks))}); train one task per model")
     return Demonstrations(tasks.pop(), float(dataset.fps), np.stack(images), np.stack(masks), objects,
                           trajectories, seeds, prompts)
+
+
+def keep_task_objects(demos: Demonstrations, count: int) -> Demonstrations:
+    """`demos` with only the first `count` labelled objects; later labels become background."""
+    masks = np.where(demos.masks > count, 0, demos.masks).astype(np.uint8)
+    return dataclasses.replace(demos, masks=masks, objects=[names[:count] for names in demos.objects])
 
 
 def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolution: int, dilation: int) -> dict:

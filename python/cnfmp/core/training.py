@@ -236,6 +236,8 @@ def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps:
     config = dataclasses.replace(config, **overrides)
     config.check()
     demos = core_data.load_demonstrations(dataset_dir)
+    if config.task_objects:
+        demos = core_data.keep_task_objects(demos, config.task_objects)
     log = (lambda line: print(line, file=sys.stderr, flush=True)) if progress else None
     if log:
         log(f"training on {len(demos)} {demos.task} demonstrations from {dataset_dir}, {config.steps} steps, seed {config.seed}")

@@ -161,8 +161,9 @@ def train_network(config: FilmSegmenterConfig, scenes: list[RenderedScene], enco
             elapsed = time.monotonic() - started
             log(f"step {step + 1}/{config.steps}  bce {recent[0]:.4f}  dice {recent[1]:.4f}  "
                 f"{elapsed:.0f}s elapsed, ~{elapsed / (step + 1) * (config.steps - step - 1):.0f}s left")
-    final = np.mean(history[-max(1, config.steps // 20):], axis=0)
-    summary = {"steps": config.steps, "seconds": round(time.monotonic() - started, 1), "scenes": len(scenes),
+    window = max(1, config.steps // 20)
+    final = np.mean(history[-window:], axis=0)
+    summary = {"steps": config.steps, "initial_bce": float(np.mean(history[:window], axis=0)[0]), "seconds": round(time.monotonic() - started, 1), "scenes": len(scenes),
                "phrasings": len(table), "final_bce": float(final[0]), "final_dice": float(final[1]),
                "parameters": sum(p.numel() for p in network.parameters())}
     return network.eval(), summary

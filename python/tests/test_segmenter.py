@@ -1,0 +1,156 @@
+"""The language segmenter: prompt parsing, post-processing, the color and film backends, role
+ordering for core models, and bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from cnfmp.errors import InputError
+from cnfmp.images import encode_png
+from cnfmp.segmenter import api, order_by_roles, phrases, segment
+from cnfmp.segmenter.base import default_film_dir, load_backend
+from cnfmp.segmenter.color import ColorBackend
+from cnfmp.segmenter.postprocess import PostprocessConfig, extract
+
+
+def roles(prompt):
+    return [(p.category, p.colour, p.role) for p in phrases.parse(prompt)]
+
+
+@pytest.mark.parametrize("prompt", [
+    "put the red ball in the box",
+    "Place the red ball into the box.",
+    "move the crimson sphere inside the tray",
+    "the ball that is red goes in the container",
+    "put the scarlet orb in the bin please",
+])
+def test_paraphrases_parse_to_the_same_target_and_destination(prompt):
+    assert roles(prompt) == [("ball", "red", "target"), ("box", None, "destination")]
+
+
+def test_parser_roles_across_tasks():
+    assert roles("move to the goal behind the wall") == [("goal marker", None, "destination"), ("wall", None, "obstacle")]
+    assert roles("go over the wall to the goal marker") == [("wall", None, "obstacle"), ("goal marker", None, "destination")]
+    assert roles("set the red block down on the inclined plate") == [("cube", "red", "target"), ("ramp", None, "destination")]
+    # a cup named twice keeps its first mention; the third cup is another object to move
+    assert roles("put the red cup in the blue cup, then the green cup in the red cup") == [
+        ("cup", "red", "target"), ("cup", "blue", "destination"), ("cup", "green", "object")]
+    # longest noun wins: a cup with a handle is a mug, a sheet of paper is paper
+    assert roles("put the cup with a handle on the sheet of paper") == [("mug", None, "target"), ("paper", None, "destination")]
+    assert phrases.parse("put the red-coloured ball in the box")[0].text == "red-coloured ball"
+    assert phrases.parse("the unicorn") == []
+
+
+def test_bad_prompts_are_input_errors():
+    with pytest.raises(InputError, match="empty"):
+        phrases.parse("   ")
+    with pytest.raises(InputError, match="at most"):
+        phrases.parse("red ball " * 200)
+
+
+def test_training_and_paraphrase_phrasings_are_disjoint_and_ground_back():
+    train = phrases.phrasings("ball", "red", "train")
+    held_out = phrases.phrasings("ball", "red", "paraphrase")
+    assert train and held_out and not set(train) & set(held_out)
+    for text in train + held_out:
+        assert phrases.ground_name(text) == ("ball", "red"), text
+
+
+def test_postprocess_keeps_the_most_probable_component_and_drops_specks():
+    probability = np.zeros((64, 64), np.float32)
+    probability[10:20, 10:20] = 0.95  # the object
+    probability[40:44, 40:44] = 0.7  # a weaker, smaller blob
+    probability[60, 2] = 1.0  # a one-pixel speck
+    result = extract(probability, PostprocessConfig())
+    assert result.found and result.bbox == [10, 10, 20, 20] and result.area == 100
+    assert result.centroid == pytest.approx([14.5, 14.5])
+    assert result.score == pytest.approx(0.95, abs=1e-3)
+    faint = extract(np.full((64, 64), 0.3, np.float32))
+    assert not faint.found and faint.score == pytest.approx(0.3) and not faint.mask.any()
+
+
+def scene_image():
+    """A beige table with a red square (rows 20-40, cols 10-30) and a blue disc around (90, 90)."""
+    image = np.full((128, 128, 3), (225, 200, 170), np.uint8)
+    image[20:40, 10:30] = (215, 30, 25)
+    yy, xx = np.mgrid[:128, :128]
+    image[(yy - 90) ** 2 + (xx - 90) ** 2 < 12 ** 2] = (30, 75, 215)
+    return image
+
+
+def test_color_backend_finds_coloured_objects_and_reports_nothing_found():
+    image = scene_image()
+    result = segment(image, "put the red block on the blue plate", ColorBackend())
+    assert [p.role for p in result.phrases] == ["target", "destination"]
+    red, blue = result.results
+    truth = np.zeros((128, 128), bool)
+    truth[20:40, 10:30] = True
+    assert red.found and (red.mask & truth).sum() / (red.mask | truth).sum() > 0.9
+    assert blue.found and abs(blue.centroid[0] - 90) < 1.5 and abs(blue.centroid[1] - 90) < 1.5
+    assert set(np.unique(result.labels)) == {0, 1, 2}
+    unicorn = segment(image, "the unicorn", ColorBackend())
+    assert unicorn.to_dict()["nothing_found"] and unicorn.phrases[0].role == "unknown"
+    black = segment(np.zeros((64, 64, 3), np.uint8), "the red ball", ColorBackend())
+    assert not black.results[0].found and black.results[0].score < 0.1
+
+
+def test_bad_images_are_input_errors():
+    with pytest.raises(InputError, match="at least"):
+        segment(np.zeros((4, 4, 3), np.uint8), "the red ball", ColorBackend())
+    with pytest.raises(InputError, match="uint8 RGB"):
+        segment(np.zeros((32, 32), np.uint8), "the red ball", ColorBackend())
+    with pytest.raises(InputError, match="not an image"):
+        api.segment(b"this is not a png", "the red ball", "color")
+    with pytest.raises(InputError, match="readable"):
+        api.segment(encode_png(scene_image())[:200], "the red ball", "color")
+
+
+def test_unknown_backend_and_missing_weights_are_input_errors(tmp_path):
+    with pytest.raises(InputError, match="unknown segmenter backend"):
+        load_backend("sam2")
+    with pytest.raises(InputError, match="does not exist"):
+        load_backend("film", tmp_path / "nothing-here")
+    with pytest.raises(InputError, match="no config.json"):
+        load_backend("film", tmp_path)
+    with pytest.raises(InputError, match="CNFMP_CLIPSEG_DIR"):
+        load_backend("clipseg")
+
+
+def test_labels_are_ordered_by_the_model_roles():
+    image = scene_image()
+    result = segment(image, "put the red block on the blue plate", ColorBackend())
+    assert order_by_roles(result, "language_pick_place") == [0, 1]
+    out = api.segment(encode_png(image), "onto the blue plate, put the red block", "color", task="language_pick_place")
+    document = json.loads(out["json"])
+    assert out["slot_names"] == ["red block", "blue plate"]
+    assert [s["role"] for s in document["slots"]] == ["target", "destination"]
+    with pytest.raises(InputError, match="needs a destination"):
+        order_by_roles(segment(image, "the red block", ColorBackend()), "language_pick_place")
+    with pytest.raises(InputError, match="not found"):
+        order_by_roles(segment(image, "put the green ball on the blue plate", ColorBackend()), "language_pick_place")
+    with pytest.raises(InputError, match="pass coarse masks"):
+        order_by_roles(result, "cube_stacking")
+
+
+def test_film_training_smoke(tmp_path):
+    from cnfmp.segmenter import training_film
+
+    out = tmp_path / "film"
+    summary = json.loads(training_film.train(str(out), steps=40, scenes_scale=0.005, progress=False))
+    assert summary["final_bce"] < summary["initial_bce"]
+    assert {p.name for p in out.iterdir()} == {"config.json", "model.safetensors", "README.md"}
+    backend = load_backend("film", out)
+    maps = backend.probabilities(scene_image(), ["red cube", "blue plate"])
+    assert maps.shape == (2, 128, 128) and maps.dtype == np.float32
+    assert np.isfinite(maps).all() and maps.min() >= 0 and maps.max() <= 1
+
+
+@pytest.mark.skipif(not (default_film_dir() / "model.safetensors").is_file(), reason="no shipped film checkpoint")
+def test_shipped_film_checkpoint_golden_iou():
+    from cnfmp.segmenter.evaluation import evaluate
+
+    report = evaluate(load_backend("film"), "language_pick_place", 6, 1_000_000)
+    assert report["mean_iou"]["seen"] > 0.8, report["mean_iou"]
+    assert report["mean_iou"]["heldout_instance"] > 0.7, report["mean_iou"]
+    assert report["rejection_rate"] >= 0.5
