@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::Args;
-use segmenter_bridge::{Bridge, BridgeError, ObjectEstimate, Prediction, TrainRequest};
+use segmenter_bridge::{Bridge, BridgeError, ObjectEstimate, Prediction, SegmentDocument, TrainRequest};
 use serde::Serialize;
 use serde_json::{Map, Value};
 
@@ -90,6 +90,12 @@ pub struct EvalArgs {
     /// Write the summary and per-episode results as JSON here (replaced atomically).
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Find the objects with the language segmenter from each scene's prompt instead of
+    /// using the simulator's masks: prompt + image -> segmenter -> model -> physics.
+    #[arg(long)]
+    from_prompt: bool,
+    #[command(flatten)]
+    segmenter: BackendArgs,
 }
 
 fn require_file(path: &Path, what: &str) -> Result<(), Failure> {
@@ -235,11 +241,32 @@ struct Episode {
     success: bool,
     reasons: Vec<String>,
     med_cm: f64,
-    /// Wall time of the predict call (ms), model loaded (the first call includes loading).
+    /// Wall time of the predict call (ms), model loaded (the first call includes loading);
+    /// with --from-prompt, segmentation included.
     latency_ms: f64,
     scene_psnr_db: f64,
     objects: Vec<ObjectEstimate>,
     timings_ms: Map<String, Value>,
+    /// What the segmenter found (--from-prompt).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    segmentation: Option<SegmentDocument>,
+}
+
+impl Episode {
+    /// An episode that failed before prediction: the segmenter found no usable objects.
+    fn unsegmented(seed: u64, reason: String, latency_ms: f64) -> Self {
+        Episode {
+            seed,
+            success: false,
+            reasons: vec![format!("not segmented: {reason}")],
+            med_cm: f64::NAN,
+            latency_ms,
+            scene_psnr_db: f64::NAN,
+            objects: Vec::new(),
+            timings_ms: Map::new(),
+            segmentation: None,
+        }
+    }
 }
 
 #[derive(Debug, Serialize)]
@@ -271,8 +298,10 @@ fn quantile(values: &[f64], q: f64) -> f64 {
     sorted[low] + (sorted[high] - sorted[low]) * (position - low as f64)
 }
 
+/// Mean of the finite values (an episode the segmenter could not ground has no MED); NaN
+/// when there are none.
 fn mean(values: impl Iterator<Item = f64>) -> f64 {
-    let (sum, count) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    let (sum, count) = values.filter(|v| v.is_finite()).fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
     if count == 0 {
         f64::NAN
     } else {
@@ -308,9 +337,23 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
         let scene_dir = scratch.path().join(format!("scene-{seed}"));
         let scene = bridge.sim_render(&args.task, seed, &scene_dir)?;
         let image = read_bytes(&scene_dir.join("image.png"), "rendered image")?;
-        let masks = read_bytes(&scene_dir.join("masks.png"), "rendered masks")?;
         let call = Instant::now();
-        let prediction = bridge.core_predict(&args.model, image, masks, scene.objects.clone())?;
+        let (masks, objects, segmentation) = if args.from_prompt {
+            // A prompt the segmenter cannot ground in the image is a failed episode.
+            match run_segmenter(&bridge, image.clone(), &scene.prompt, &args.segmenter, Some(&args.task)) {
+                Ok(found) => (found.labels_png, found.slot_names, Some(found.document)),
+                Err(Failure::BadInput(message)) => {
+                    let episode = Episode::unsegmented(seed, message, call.elapsed().as_secs_f64() * 1e3);
+                    eprintln!("[{}/{}] seed {seed}: FAIL ({})", index + 1, args.episodes, episode.reasons.join("; "));
+                    episodes.push(episode);
+                    continue;
+                }
+                Err(other) => return Err(other),
+            }
+        } else {
+            (read_bytes(&scene_dir.join("masks.png"), "rendered masks")?, scene.objects.clone(), None)
+        };
+        let prediction = bridge.core_predict(&args.model, image, masks, objects)?;
         let latency_ms = call.elapsed().as_secs_f64() * 1e3;
         let predicted = resample(
             &trajectory_of(&prediction)?,
@@ -343,6 +386,7 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
             scene_psnr_db: prediction.scene_psnr_db,
             objects: prediction.objects,
             timings_ms: prediction.timings_ms,
+            segmentation,
         });
         let successes = episodes.iter().filter(|e| e.success).count();
         let episode = episodes.last().expect("just pushed");

@@ -44,6 +44,13 @@ class FilmSegmenterConfig:
     #: empty mask), so that "the unicorn" or "the purple can" in a scene without one is
     #: answered with nothing rather than the nearest object.
     negative_fraction: float = 0.2
+    #: Embedding augmentation, so the decoder answers a neighbourhood of each training phrase
+    #: rather than the phrase's exact point (paraphrases land nearby, not on it): the chance
+    #: that a sample's embedding is a random convex mix of two phrasings of the same thing,
+    #: and the standard deviation of Gaussian noise added per dimension before
+    #: re-normalising (unit-norm embeddings of 384 dimensions).
+    phrasing_mix_probability: float = 0.5
+    embedding_noise: float = 0.02
 
     # ---- optimisation ----
     steps: int = 3000

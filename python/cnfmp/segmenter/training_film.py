@@ -102,6 +102,17 @@ def _augment(images: torch.Tensor, config: FilmSegmenterConfig, rng: np.random.G
     return images.clamp(0.0, 1.0)
 
 
+def _augment_embeddings(embeddings: torch.Tensor, pairs: list[list[int]], config: FilmSegmenterConfig,
+                        rng: np.random.Generator) -> torch.Tensor:
+    """Per sample, two phrasing indices of the same thing -> (N, D) unit embeddings: the first
+    phrasing's, or with `phrasing_mix_probability` a random convex mix of both; plus noise."""
+    pairs = torch.as_tensor(pairs)
+    mix = torch.from_numpy(rng.uniform(size=(len(pairs), 1)) * (rng.uniform(size=(len(pairs), 1)) < config.phrasing_mix_probability)).float()
+    mixed = (1 - mix) * embeddings[pairs[:, 0]] + mix * embeddings[pairs[:, 1]]
+    mixed = mixed + config.embedding_noise * torch.from_numpy(rng.standard_normal(mixed.shape)).float()
+    return F.normalize(mixed, dim=-1)
+
+
 def train_network(config: FilmSegmenterConfig, scenes: list[RenderedScene], encoder: PhraseEncoder,
                   log=None, phrases_per_scene: int = 3) -> tuple[FilmUNet, dict]:
     """Trains the U-Net; returns it (eval mode) and a summary (steps, seconds, final loss)."""
@@ -136,14 +147,15 @@ def train_network(config: FilmSegmenterConfig, scenes: list[RenderedScene], enco
                     k = int(rng.integers(len(scene.things)))
                     thing, target = scene.things[k], scene.masks[k]
                 options = phrasings[thing]
-                phrase_ids.append(index[options[rng.integers(len(options))]])
+                phrase_ids.append([index[options[i]] for i in rng.integers(len(options), size=2)])
                 targets.append(target)
         target = torch.from_numpy(np.stack(targets))
         flip = torch.from_numpy(rng.random(images_per_step) < config.flip_probability)
         images = torch.where(flip[:, None, None, None], images.flip(-1), images)
         target = torch.where(flip.repeat_interleave(phrases_per_scene)[:, None, None], target.flip(-1), target)
         features = network.encode(images)
-        logits = network.decode([f.repeat_interleave(phrases_per_scene, 0) for f in features], embeddings[phrase_ids])
+        logits = network.decode([f.repeat_interleave(phrases_per_scene, 0) for f in features],
+                                _augment_embeddings(embeddings, phrase_ids, config, rng))
         bce = F.binary_cross_entropy_with_logits(logits, target)
         prob = torch.sigmoid(logits)
         positive = target.flatten(1).sum(1) > 0
