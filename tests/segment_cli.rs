@@ -126,7 +126,7 @@ fn predict_from_a_prompt() {
 
     let bad = dir.path().join("bad.json");
     assert_bad_input(
-        &cnfmp(&["predict", "--model", arg(&model), "--image", arg(&image), "--prompt", "pick up the red ball", "--out", arg(&bad)]),
+        &cnfmp(&["predict", "--model", arg(&model), "--image", arg(&image), "--prompt", &format!("pick up the {}", info["objects"][0].as_str().unwrap()), "--out", arg(&bad)]),
         "needs a destination",
     );
     let output = cnfmp(&["predict", "--model", arg(&model), "--image", arg(&image), "--out", arg(&bad)]);

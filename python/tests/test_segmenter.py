@@ -42,6 +42,16 @@ def test_parser_roles_across_tasks():
     assert phrases.parse("the unicorn") == []
 
 
+def test_backends_ground_the_canonical_wording():
+    cobalt_glass, crate = phrases.parse("put the cobalt glass into the crate")
+    assert phrases.canonical(cobalt_glass) == "blue cup" and phrases.canonical(crate) == "box"
+    assert phrases.canonical(phrases.parse("the cup with a handle")[0]) == "mug"
+    unicorn = phrases.Phrase("the unicorn", "unknown", None, None, (0, 11))
+    assert phrases.canonical(unicorn) == "the unicorn"
+    assert "the unicorn" in phrases.unknown_phrasings("paraphrase")
+    assert not set(phrases.unknown_phrasings("train")) & set(phrases.unknown_phrasings("paraphrase"))
+
+
 def test_bad_prompts_are_input_errors():
     with pytest.raises(InputError, match="empty"):
         phrases.parse("   ")

@@ -216,8 +216,9 @@ fn eval(args: SegmenterEvalArgs) -> Result<(), Failure> {
     let iou = |split: &str| report["mean_iou"][split].as_f64().map_or("n/a".to_owned(), |v| format!("{v:.3}"));
     let count = |split: &str| report["count"][split].as_u64().unwrap_or(0);
     print_stdout(&format!(
-        "{} on {} held-out {} scenes (seeds {}..={last}): mean IoU seen {} (n={}), paraphrase {} (n={}), held-out instance {} (n={}); \
-         absent objects rejected {:.2}; latency p50 {:.1} ms / p95 {:.1} ms per scene ({:.1} phrases)",
+        "{} on {} held-out {} scenes (seeds {}..={last}): mean IoU seen {} (n={}), paraphrase {} (n={}; as written to the backend {}), \
+         held-out instance {} (n={}); \
+         rejected: absent objects {:.2}, unknown things {:.2}; latency p50 {:.1} ms / p95 {:.1} ms per scene ({:.1} phrases)",
         report["backend"]["backend"].as_str().unwrap_or("?"),
         args.episodes,
         args.task,
@@ -226,9 +227,11 @@ fn eval(args: SegmenterEvalArgs) -> Result<(), Failure> {
         count("seen"),
         iou("paraphrase"),
         count("paraphrase"),
+        iou("paraphrase_raw"),
         iou("heldout_instance"),
         count("heldout_instance"),
         report["rejection_rate"].as_f64().unwrap_or(f64::NAN),
+        report["unknown_rejection_rate"].as_f64().unwrap_or(f64::NAN),
         report["latency_ms_p50"].as_f64().unwrap_or(f64::NAN),
         report["latency_ms_p95"].as_f64().unwrap_or(f64::NAN),
         report["phrases_per_scene"].as_f64().unwrap_or(f64::NAN),

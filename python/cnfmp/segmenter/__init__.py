@@ -7,7 +7,8 @@ the prompt names, with its role, score, bounding box and centroid.
     [p.role for p in result.phrases]   # ["target", "destination"]
 
 The prompt is parsed into phrases (:mod:`.phrases`), a backend (:mod:`.base`) grounds each
-phrase as a probability map, and the shared OpenCV chain (:mod:`.postprocess`) extracts the
+phrase's canonical wording (synonyms resolved by the vocabulary: "cobalt glass" -> "blue
+cup") as a probability map, and the shared OpenCV chain (:mod:`.postprocess`) extracts the
 masks. A prompt naming nothing in the vocabulary is grounded as a whole; what cannot be
 found is reported as not found, with its (low) score.
 """
@@ -82,7 +83,7 @@ def segment(image: np.ndarray, prompt: str, backend: Backend | str = "auto") -> 
         found = [_phrases.Phrase(text, "unknown", None, None, (0, len(text)))]
     backend = load_backend(backend) if isinstance(backend, str) else backend
     parsed = time.perf_counter()
-    probabilities = backend.probabilities(image, [p.text for p in found])
+    probabilities = backend.probabilities(image, [_phrases.canonical(p) for p in found])
     grounded = time.perf_counter()
     results = [extract(p, backend.postprocess) for p in probabilities]
     labels = label_map(probabilities, results)

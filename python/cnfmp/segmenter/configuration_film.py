@@ -44,6 +44,14 @@ class FilmSegmenterConfig:
     #: empty mask), so that "the unicorn" or "the purple can" in a scene without one is
     #: answered with nothing rather than the nearest object.
     negative_fraction: float = 0.2
+    #: Of the negative samples, the fraction that are hard: the absent thing shares a colour
+    #: or a category with something present ("green ball" beside a green cube), so colour
+    #: and shape must both match.
+    hard_negative_fraction: float = 0.5
+    #: Of the negative samples, the fraction whose phrase names something outside the
+    #: vocabulary ("the dog", prompts/vocabulary.json ``unknown_things``), so that a prompt
+    #: about something we never model finds nothing.
+    unknown_negative_fraction: float = 0.25
     #: Embedding augmentation, so the decoder answers a neighbourhood of each training phrase
     #: rather than the phrase's exact point (paraphrases land nearby, not on it): the chance
     #: that a sample's embedding is a random convex mix of two phrasings of the same thing,

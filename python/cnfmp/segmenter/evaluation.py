@@ -3,12 +3,17 @@ scenes, split three ways:
 
 - ``seen``: objects of training (category, colour) combinations, named with training phrasings;
 - ``paraphrase``: the same objects named with paraphrases never used in training (held-out
-  synonyms and templates of prompts/vocabulary.json);
+  synonyms and templates of prompts/vocabulary.json), grounded as :func:`segment` does: the
+  parser resolves what the vocabulary knows and the backend sees the canonical wording;
+- ``paraphrase_raw``: the same paraphrases handed to the backend as written, which measures
+  what the backend's own text encoder generalises to;
 - ``heldout_instance``: objects of (category, colour) combinations never shown in training
   (language_pick_place's held-out combinations), named with training phrasings.
 
-Also reported: how often a phrase naming something absent is answered with "not found"
-(``rejection_rate``), and the grounding latency per scene.
+Also reported: how often a phrase naming something absent from the scene
+(``rejection_rate``) or something outside the vocabulary never used in training ("the
+unicorn", ``unknown_rejection_rate``) is answered with "not found", and the grounding latency
+per scene.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from cnfmp.segmenter.base import Backend
 from cnfmp.segmenter.postprocess import extract
 from cnfmp.segmenter.training_film import is_absent, render_scene
 
-SPLITS = ("seen", "paraphrase", "heldout_instance")
+SPLITS = ("seen", "paraphrase", "paraphrase_raw", "heldout_instance")
 
 
 def _is_heldout_instance(task: str, scene_params: dict, label: int) -> bool:
@@ -33,6 +38,12 @@ def _is_heldout_instance(task: str, scene_params: dict, label: int) -> bool:
 
     obj = scene_params["objects"][label - 1]
     return obj["category"] in MOVABLE_NOUNS and is_heldout_combination(obj["category"], obj["colour"])
+
+
+def _as_segment_grounds(text: str) -> str:
+    """What :func:`cnfmp.segmenter.segment` hands the backend for a one-phrase prompt."""
+    found = vocab.parse(text)
+    return vocab.canonical(found[0]) if found else text
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -50,7 +61,8 @@ def evaluate(backend: Backend, task: str, episodes: int, seed_start: int, log=No
     task_obj = get_task(task)
     everything = [(c, k) for c in vocab.vocabulary()["categories"] for k in [None, *vocab.vocabulary()["colours"]]]
     scores: dict[str, list[float]] = {s: [] for s in SPLITS}
-    rejections, latencies, per_scene = [], [], []
+    rejections, unknown_rejections, latencies, per_scene = [], [], [], []
+    unknown = vocab.unknown_phrasings("paraphrase")
     started = time.monotonic()
     for index, seed in enumerate(range(seed_start, seed_start + episodes)):
         rng = np.random.default_rng(seed)
@@ -66,15 +78,21 @@ def evaluate(backend: Backend, task: str, episodes: int, seed_start: int, log=No
                 queries.append(("heldout_instance", label, train_options[rng.integers(len(train_options))]))
                 continue
             paraphrases = vocab.phrasings(*thing, "paraphrase")
+            paraphrase = paraphrases[rng.integers(len(paraphrases))]
             queries.append(("seen", label, train_options[rng.integers(len(train_options))]))
-            queries.append(("paraphrase", label, paraphrases[rng.integers(len(paraphrases))]))
+            queries.append(("paraphrase", label, paraphrase))
+            queries.append(("paraphrase_raw", label, paraphrase))
         present = [vocab.ground_name(n) for n in names]
         absent = [t for t in everything if is_absent(t, present)]
         negative = absent[rng.integers(len(absent))]
         negative_options = vocab.phrasings(*negative, "train")
-        phrase_list = [q[2] for q in queries] + [negative_options[rng.integers(len(negative_options))]]
+        phrase_list = [q[2] for q in queries] + [negative_options[rng.integers(len(negative_options))],
+                                                 unknown[rng.integers(len(unknown))]]
         call = time.perf_counter()
-        probabilities = backend.probabilities(image, phrase_list)
+        splits = [q[0] for q in queries] + ["absent", "unknown"]
+        grounded = [text if split == "paraphrase_raw" else _as_segment_grounds(text)
+                    for split, text in zip(splits, phrase_list)]
+        probabilities = backend.probabilities(image, grounded)
         latencies.append(1e3 * (time.perf_counter() - call))
         results = [extract(p, backend.postprocess) for p in probabilities]
         scene_scores = []
@@ -83,20 +101,24 @@ def evaluate(backend: Backend, task: str, episodes: int, seed_start: int, log=No
             scores[split].append(value)
             scene_scores.append({"split": split, "object": names[label - 1], "phrase": phrase, "iou": round(value, 4),
                                  "found": result.found, "score": round(result.score, 4)})
-        rejections.append(not results[-1].found)
+        rejections.append(not results[-2].found)
+        unknown_rejections.append(not results[-1].found)
         per_scene.append({"seed": seed, "objects": scene_scores,
-                          "negative": {"phrase": phrase_list[-1], "rejected": rejections[-1]}})
+                          "absent": {"phrase": phrase_list[-2], "rejected": rejections[-1]},
+                          "unknown": {"phrase": phrase_list[-1], "rejected": unknown_rejections[-1]}})
         if log and ((index + 1) % 20 == 0 or index + 1 == episodes):
             means = ", ".join(f"{s} {np.mean(v):.3f}" for s, v in scores.items() if v)
-            log(f"[{index + 1}/{episodes}] mean IoU: {means}; rejection {np.mean(rejections):.2f}")
+            log(f"[{index + 1}/{episodes}] mean IoU: {means}; rejected: absent {np.mean(rejections):.2f}, "
+                f"unknown {np.mean(unknown_rejections):.2f}")
     warm = latencies[1:] or latencies
     return {
         "task": task, "backend": backend.describe(), "episodes": episodes, "seed_start": seed_start,
         "mean_iou": {s: (float(np.mean(v)) if v else None) for s, v in scores.items()},
         "count": {s: len(v) for s, v in scores.items()},
         "rejection_rate": float(np.mean(rejections)),
+        "unknown_rejection_rate": float(np.mean(unknown_rejections)),
         "latency_ms_p50": float(np.percentile(warm, 50)), "latency_ms_p95": float(np.percentile(warm, 95)),
-        "phrases_per_scene": float(np.mean([len(s["objects"]) + 1 for s in per_scene])),
+        "phrases_per_scene": float(np.mean([len(s["objects"]) + 2 for s in per_scene])),
         "wall_time_s": round(time.monotonic() - started, 1), "per_scene": per_scene,
     }
 

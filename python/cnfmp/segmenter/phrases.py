@@ -11,7 +11,8 @@ colour before it ("red", "red-coloured") or after it ("the cup that is red"). Ro
 - ``object``: anything else (a second thing to move in a stacking prompt).
 
 A thing named twice ("the red cup in the blue cup, then the green cup in the red cup") keeps
-its first mention. The vocabulary also says which synonyms and templates are held out of
+its first mention. Backends ground a phrase's canonical wording (:func:`canonical`), so the
+vocabulary's synonyms resolve here, not in a network. The vocabulary also says which synonyms and templates are held out of
 segmenter training (``phrasings``), so evaluation can measure unseen paraphrases.
 """
 
@@ -144,6 +145,17 @@ def parse(prompt: str) -> list[Phrase]:
     return phrases
 
 
+def canonical(phrase: Phrase) -> str:
+    """The text a backend grounds for `phrase`: for a phrase the vocabulary grounds, its
+    canonical wording ("cobalt glass" -> "blue cup": the colour's name and the category's
+    first noun), so synonyms the vocabulary knows cost the backend nothing; anything else
+    as written, left to the backend's text encoder."""
+    if phrase.category is None:
+        return phrase.text
+    noun = vocabulary()["categories"][phrase.category]["train"][0]
+    return f"{phrase.colour} {noun}" if phrase.colour else noun
+
+
 def phrasings(category: str, colour: str | None, split: str) -> list[str]:
     """Every way the vocabulary words (category, colour) in `split` ("train" or "paraphrase"):
     a paraphrase uses a held-out synonym or a held-out template."""
@@ -166,6 +178,15 @@ def phrasings(category: str, colour: str | None, split: str) -> list[str]:
                   - set(phrasings(category, colour, "train")))
 
 
+def unknown_phrasings(split: str) -> list[str]:
+    """Phrases naming things that never appear in our scenes (``unknown_things`` of the
+    vocabulary), in `split`: "the dog", "a red dog", ..."""
+    vocab = vocabulary()
+    colours = [entry["train"][0] for entry in vocab["colours"].values()]
+    return [phrase for thing in vocab["unknown_things"][split]
+            for phrase in (f"the {thing}", f"a {thing}", *(f"the {c} {thing}" for c in colours))]
+
+
 def ground_name(name: str) -> tuple[str, str | None]:
     """(category, colour) of a simulator object name ("red ball", "wall", "green mug")."""
     found = parse(name)
@@ -174,4 +195,5 @@ def ground_name(name: str) -> tuple[str, str | None]:
     return found[0].category, found[0].colour
 
 
-__all__ = ["MAX_PROMPT_CHARS", "Phrase", "check_prompt", "ground_name", "parse", "phrasings", "vocabulary"]
+__all__ = ["MAX_PROMPT_CHARS", "Phrase", "canonical", "check_prompt", "ground_name", "parse", "phrasings", "unknown_phrasings",
+           "vocabulary"]

@@ -91,6 +91,12 @@ def is_absent(thing: tuple[str, str | None], present: list[tuple[str, str | None
     return not any(c == category and (colour is None or colour == k) for c, k in map(_family, present))
 
 
+def _resembles(thing: tuple[str, str | None], present: list[tuple[str, str | None]]) -> bool:
+    """Whether `thing` shares its colour or its category family with something present."""
+    category, colour = _family(thing)
+    return any(c == category or (colour is not None and colour == k) for c, k in map(_family, present))
+
+
 def _augment(images: torch.Tensor, config: FilmSegmenterConfig, rng: np.random.Generator) -> torch.Tensor:
     """(B, 3, S, S) in [0, 1] -> photometric jitter per image (colour-preserving)."""
     b = images.shape[0]
@@ -120,10 +126,12 @@ def train_network(config: FilmSegmenterConfig, scenes: list[RenderedScene], enco
     rng = np.random.default_rng(config.seed)
     things = sorted({t for s in scenes for t in s.things}, key=str)
     phrasings = {t: vocab.phrasings(*t, "train") for t in things}
-    table = sorted({p for ps in phrasings.values() for p in ps})
+    unknown = vocab.unknown_phrasings("train")
+    table = sorted({p for ps in phrasings.values() for p in ps} | set(unknown))
     index = {p: i for i, p in enumerate(table)}
     embeddings = encoder(table)
     absent_things = [[t for t in things if is_absent(t, s.things)] for s in scenes]
+    hard_absent = [[t for t in absent if _resembles(t, s.things)] for absent, s in zip(absent_things, scenes)]
     network = FilmUNet(config).train()
     optimiser = torch.optim.AdamW(network.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimiser, max_lr=config.learning_rate, total_steps=config.steps,
@@ -142,11 +150,15 @@ def train_network(config: FilmSegmenterConfig, scenes: list[RenderedScene], enco
             for _ in range(phrases_per_scene):
                 absent = absent_things[scene_index]
                 if absent and rng.random() < config.negative_fraction:
-                    thing, target = absent[rng.integers(len(absent))], np.zeros((size, size), np.float32)
+                    hard = hard_absent[scene_index]
+                    pool = hard if hard and rng.random() < config.hard_negative_fraction else absent
+                    thing, target = pool[rng.integers(len(pool))], np.zeros((size, size), np.float32)
+                    if rng.random() < config.unknown_negative_fraction:
+                        thing = None
                 else:
                     k = int(rng.integers(len(scene.things)))
                     thing, target = scene.things[k], scene.masks[k]
-                options = phrasings[thing]
+                options = unknown if thing is None else phrasings[thing]
                 phrase_ids.append([index[options[i]] for i in rng.integers(len(options), size=2)])
                 targets.append(target)
         target = torch.from_numpy(np.stack(targets))
