@@ -164,3 +164,26 @@ def test_shipped_film_checkpoint_golden_iou():
     assert report["mean_iou"]["seen"] > 0.8, report["mean_iou"]
     assert report["mean_iou"]["heldout_instance"] > 0.7, report["mean_iou"]
     assert report["rejection_rate"] >= 0.5
+
+
+class RecordingBackend(ColorBackend):
+    """The color backend, remembering what it was asked to ground."""
+
+    def __init__(self, open_vocabulary):
+        self.open_vocabulary, self.asked = open_vocabulary, []
+
+    def probabilities(self, image, phrases_):
+        self.asked.append(list(phrases_))
+        return super().probabilities(image, phrases_)
+
+
+def test_closed_vocabulary_backends_are_not_asked_about_unknown_words():
+    closed = RecordingBackend(open_vocabulary=False)
+    result = segment(scene_image(), "put the unicorn on the blue plate", closed)
+    assert closed.asked == [["blue plate"]]
+    assert [p.text for p in result.phrases] == ["blue plate"]  # the parser drops the unknown word
+    whole = segment(scene_image(), "the unicorn", closed)
+    assert closed.asked == [["blue plate"]] and not whole.results[0].found
+    opened = RecordingBackend(open_vocabulary=True)
+    segment(scene_image(), "the unicorn", opened)
+    assert opened.asked == [["the unicorn"]]

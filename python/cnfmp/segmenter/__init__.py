@@ -9,8 +9,9 @@ the prompt names, with its role, score, bounding box and centroid.
 The prompt is parsed into phrases (:mod:`.phrases`), a backend (:mod:`.base`) grounds each
 phrase's canonical wording (synonyms resolved by the vocabulary: "cobalt glass" -> "blue
 cup") as a probability map, and the shared OpenCV chain (:mod:`.postprocess`) extracts the
-masks. A prompt naming nothing in the vocabulary is grounded as a whole; what cannot be
-found is reported as not found, with its (low) score.
+masks. A prompt naming nothing in the vocabulary is grounded as a whole by open-vocabulary
+backends (clipseg, owlv2-sam) and reported as not found by the others; whatever cannot be
+found is reported as such, with its (low) score.
 """
 
 from __future__ import annotations
@@ -43,8 +44,9 @@ class Segmentation:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
     def objects(self) -> list[dict]:
-        """Per phrase: phrase, role, category, colour, found, score, area (px), bbox [x0, y0,
-        x1, y1) and centroid [x, y] (px), label."""
+        """Per phrase: phrase, role, category, colour (None when the vocabulary does not know
+        the phrase), found, score, area (px), bbox [x0, y0, x1, y1) and centroid [x, y] (px),
+        label."""
         return [{"phrase": p.text, "role": p.role, "category": p.category, "colour": p.colour,
                  "found": r.found, "score": round(r.score, 4), "area": r.area, "bbox": r.bbox,
                  "centroid": None if r.centroid is None else [round(v, 2) for v in r.centroid],
@@ -83,7 +85,12 @@ def segment(image: np.ndarray, prompt: str, backend: Backend | str = "auto") -> 
         found = [_phrases.Phrase(text, "unknown", None, None, (0, len(text)))]
     backend = load_backend(backend) if isinstance(backend, str) else backend
     parsed = time.perf_counter()
-    probabilities = backend.probabilities(image, [_phrases.canonical(p) for p in found])
+    # A closed-vocabulary backend is not asked about what the vocabulary cannot ground: its
+    # answer would be a guess. Such a phrase gets an all-zero map, i.e. "not found".
+    asked = [k for k, p in enumerate(found) if p.category is not None or backend.open_vocabulary]
+    probabilities = np.zeros((len(found), *image.shape[:2]), np.float32)
+    if asked:
+        probabilities[asked] = backend.probabilities(image, [_phrases.canonical(found[k]) for k in asked])
     grounded = time.perf_counter()
     results = [extract(p, backend.postprocess) for p in probabilities]
     labels = label_map(probabilities, results)

@@ -36,6 +36,10 @@ class Backend(abc.ABC):
     name: str = ""
     #: Post-processing settings tuned for this backend's probabilities.
     postprocess: PostprocessConfig = PostprocessConfig()
+    #: Whether the backend can ground words outside prompts/vocabulary.json (pretrained
+    #: vision-language models can; film and color only know the vocabulary, so a phrase the
+    #: parser cannot ground is answered "not found" without asking them).
+    open_vocabulary: bool = False
 
     @abc.abstractmethod
     def probabilities(self, image: np.ndarray, phrases: list[str]) -> np.ndarray:

@@ -26,7 +26,7 @@ from cnfmp.errors import InputError
 from cnfmp.segmenter import phrases as vocab
 from cnfmp.segmenter.base import Backend
 from cnfmp.segmenter.postprocess import extract
-from cnfmp.segmenter.training_film import is_absent, render_scene
+from cnfmp.segmenter.training_film import is_absent, render_scene, vocabulary_things
 
 SPLITS = ("seen", "paraphrase", "paraphrase_raw", "heldout_instance")
 
@@ -59,7 +59,6 @@ def evaluate(backend: Backend, task: str, episodes: int, seed_start: int, log=No
         raise InputError(f"evaluation scenes must be held-out: seeds {seed_start}..={seed_start + episodes - 1} "
                          f"are not all within {HELDOUT_SEEDS.start}..={HELDOUT_SEEDS.stop - 1}")
     task_obj = get_task(task)
-    everything = [(c, k) for c in vocab.vocabulary()["categories"] for k in [None, *vocab.vocabulary()["colours"]]]
     scores: dict[str, list[float]] = {s: [] for s in SPLITS}
     rejections, unknown_rejections, latencies, per_scene = [], [], [], []
     unknown = vocab.unknown_phrasings("paraphrase")
@@ -83,7 +82,7 @@ def evaluate(backend: Backend, task: str, episodes: int, seed_start: int, log=No
             queries.append(("paraphrase", label, paraphrase))
             queries.append(("paraphrase_raw", label, paraphrase))
         present = [vocab.ground_name(n) for n in names]
-        absent = [t for t in everything if is_absent(t, present)]
+        absent = [t for t in vocabulary_things() if is_absent(t, present)]
         negative = absent[rng.integers(len(absent))]
         negative_options = vocab.phrasings(*negative, "train")
         phrase_list = [q[2] for q in queries] + [negative_options[rng.integers(len(negative_options))],

@@ -84,6 +84,12 @@ def _family(thing: tuple[str, str | None]) -> tuple[str, str | None]:
     return _FAMILY.get(thing[0], thing[0]), thing[1]
 
 
+def vocabulary_things() -> list[tuple[str, str | None]]:
+    """Every (category, colour) the vocabulary can name, colour None included."""
+    v = vocab.vocabulary()
+    return [(category, colour) for category in v["categories"] for colour in [None, *v["colours"]]]
+
+
 def is_absent(thing: tuple[str, str | None], present: list[tuple[str, str | None]]) -> bool:
     """Whether no object of the scene answers to `thing` (same category family and, when
     `thing` has a colour, the same colour)."""
@@ -124,7 +130,11 @@ def train_network(config: FilmSegmenterConfig, scenes: list[RenderedScene], enco
     """Trains the U-Net; returns it (eval mode) and a summary (steps, seconds, final loss)."""
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    things = sorted({t for s in scenes for t in s.things}, key=str)
+    # Negatives may name anything in the vocabulary, including the (category, colour)
+    # combinations no training scene shows: asking for an "orange cube" in a scene with an
+    # orange can and no orange cube teaches that colour and shape must both match, without
+    # showing a single pixel of an orange cube.
+    things = vocabulary_things()
     phrasings = {t: vocab.phrasings(*t, "train") for t in things}
     unknown = vocab.unknown_phrasings("train")
     table = sorted({p for ps in phrasings.values() for p in ps} | set(unknown))
