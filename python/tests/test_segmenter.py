@@ -9,7 +9,7 @@ import pytest
 from cnfmp.errors import InputError
 from cnfmp.images import encode_png
 from cnfmp.segmenter import api, order_by_roles, phrases, segment
-from cnfmp.segmenter.base import default_film_dir, load_backend
+from cnfmp.segmenter.base import load_backend
 from cnfmp.segmenter.color import ColorBackend
 from cnfmp.segmenter.postprocess import PostprocessConfig, extract
 
@@ -156,14 +156,15 @@ def test_film_training_smoke(tmp_path):
     assert np.isfinite(maps).all() and maps.min() >= 0 and maps.max() <= 1
 
 
-@pytest.mark.skipif(not (default_film_dir() / "model.safetensors").is_file(), reason="no shipped film checkpoint")
 def test_shipped_film_checkpoint_golden_iou():
+    """The committed checkpoint (models/segmenter) on 6 held-out scenes; the 200-scene figures
+    are in docs/benchmarks.md."""
     from cnfmp.segmenter.evaluation import evaluate
 
     report = evaluate(load_backend("film"), "language_pick_place", 6, 1_000_000)
     assert report["mean_iou"]["seen"] > 0.8, report["mean_iou"]
+    assert report["mean_iou"]["paraphrase"] > 0.8, report["mean_iou"]
     assert report["mean_iou"]["heldout_instance"] > 0.7, report["mean_iou"]
-    assert report["rejection_rate"] >= 0.5
 
 
 class RecordingBackend(ColorBackend):

@@ -38,7 +38,7 @@ class FilmSegmenterConfig:
     # ---- training data (simulator renders of training seeds) ----
     #: Scenes rendered per task for training, from seed 0 up (held-out seeds are never used).
     scenes_per_task: dict[str, int] = field(default_factory=lambda: {
-        "language_pick_place": 2400, "cube_stacking": 150, "cup_stacking": 150,
+        "language_pick_place": 1200, "cube_stacking": 150, "cup_stacking": 150,
         "incline_pick_place": 150, "wall_avoidance": 150})
     #: Fraction of samples whose phrase names something absent from the scene (target: an
     #: empty mask), so that "the unicorn" or "the purple can" in a scene without one is
@@ -61,7 +61,7 @@ class FilmSegmenterConfig:
     embedding_noise: float = 0.02
 
     # ---- optimisation ----
-    steps: int = 5000
+    steps: int = 3000
     batch_size: int = 24
     learning_rate: float = 2e-3
     weight_decay: float = 1e-4
