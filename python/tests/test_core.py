@@ -173,7 +173,7 @@ def test_bad_inputs_are_clear_errors(trained, tmp_path, demos):
         api.predict(str(good), image, small_masks, ["wall", "goal marker"])
     with pytest.raises(InputError, match="names 1 object.*label 2"):
         api.predict(str(good), image, masks, ["wall"])
-    with pytest.raises(InputError, match="not a readable image"):
+    with pytest.raises(InputError, match="image is not an image in a format we read"):
         api.predict(str(good), b"not a png at all", masks, ["wall", "goal marker"])
     with pytest.raises(InputError, match="single-channel label map"):
         api.predict(str(good), image, image, ["wall", "goal marker"])
