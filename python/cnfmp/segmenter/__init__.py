@@ -23,12 +23,8 @@ import numpy as np
 
 from cnfmp.errors import InputError
 from cnfmp.segmenter import phrases as _phrases
-from cnfmp.segmenter.base import Backend, load_backend
+from cnfmp.segmenter.base import Backend, check_image, load_backend
 from cnfmp.segmenter.postprocess import ObjectMask, extract, label_map
-
-#: Smallest image side accepted (px): below it there is nothing to segment.
-MIN_IMAGE_SIDE = 8
-
 
 @dataclass
 class Segmentation:
@@ -58,17 +54,6 @@ class Segmentation:
         return {"prompt": self.prompt, "backend": self.backend, "image_size": list(self.labels.shape),
                 "found": found, "nothing_found": found == 0, "objects": self.objects(),
                 "timings_ms": {k: round(v, 3) for k, v in self.timings_ms.items()}}
-
-
-def check_image(image: np.ndarray) -> np.ndarray:
-    """`image` as (H, W, 3) uint8, or an InputError naming what is wrong with it."""
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-        raise InputError(f"the image must be (H, W, 3) uint8 RGB, got shape {image.shape} and dtype {image.dtype}")
-    if min(image.shape[:2]) < MIN_IMAGE_SIDE:
-        raise InputError(f"the image is {image.shape[1]}x{image.shape[0]} px; each side must be at least "
-                         f"{MIN_IMAGE_SIDE} px")
-    return image
 
 
 def segment(image: np.ndarray, prompt: str, backend: Backend | str = "auto") -> Segmentation:

@@ -51,6 +51,21 @@ class Backend(abc.ABC):
         return {"backend": self.name}
 
 
+#: Smallest image side accepted (px): below it there is nothing to segment.
+MIN_IMAGE_SIDE = 8
+
+
+def check_image(image: np.ndarray) -> np.ndarray:
+    """`image` as a contiguous (H, W, 3) uint8 array, or an InputError naming what is wrong."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise InputError(f"the image must be (H, W, 3) uint8 RGB, got shape {image.shape} and dtype {image.dtype}")
+    if min(image.shape[:2]) < MIN_IMAGE_SIDE:
+        raise InputError(f"the image is {image.shape[1]}x{image.shape[0]} px; each side must be at least "
+                         f"{MIN_IMAGE_SIDE} px")
+    return np.ascontiguousarray(image)
+
+
 def default_film_dir() -> Path:
     """The shipped film checkpoint: ``$CNFMP_SEGMENTER_DIR`` or the repository's ``models/segmenter``."""
     configured = os.environ.get("CNFMP_SEGMENTER_DIR")
@@ -104,4 +119,4 @@ def load_backend(name: str = "auto", weights: str | os.PathLike | None = None) -
     return ColorBackend()
 
 
-__all__ = ["BACKENDS", "Backend", "default_film_dir", "load_backend", "require_dir"]
+__all__ = ["BACKENDS", "Backend", "check_image", "default_film_dir", "load_backend", "require_dir"]

@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 
 from cnfmp.errors import InputError
-from cnfmp.segmenter.base import Backend
+from cnfmp.segmenter.base import Backend, check_image
 from cnfmp.segmenter.postprocess import PostprocessConfig
 
 #: Weight files transformers can load, safest first.
@@ -101,14 +101,6 @@ def pick_device(device: str | torch.device | None) -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
-def check_image(image: np.ndarray) -> np.ndarray:
-    """`image` as a contiguous (H, W, 3) uint8 array, else an InputError."""
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8 or 0 in image.shape:
-        raise InputError(f"segmenter input must be an (H, W, 3) uint8 RGB image, got {image.dtype} {image.shape}")
-    return np.ascontiguousarray(image)
-
-
 class ClipSegBackend(Backend):
     """CLIPSeg (CIDAS/clipseg-rd64-refined layout) loaded from a local directory."""
 
@@ -157,4 +149,4 @@ class ClipSegBackend(Backend):
             return probabilities[:, 0].clamp(0.0, 1.0).cpu().numpy()
 
 
-__all__ = ["ClipSegBackend", "check_config", "check_image", "load_local_model", "load_local_processor", "pick_device"]
+__all__ = ["ClipSegBackend", "check_config", "load_local_model", "load_local_processor", "pick_device"]

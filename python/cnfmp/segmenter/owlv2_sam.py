@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from cnfmp.segmenter.base import Backend
-from cnfmp.segmenter.clipseg import check_image, load_local_model, load_local_processor, pick_device
+from cnfmp.segmenter.base import Backend, check_image
+from cnfmp.segmenter.clipseg import load_local_model, load_local_processor, pick_device
 from cnfmp.segmenter.postprocess import PostprocessConfig
 
 
