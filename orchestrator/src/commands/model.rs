@@ -98,6 +98,39 @@ pub struct EvalArgs {
     segmenter: BackendArgs,
 }
 
+/// The last seed of `episodes` consecutive scenes from `seed_start`, all of which must be
+/// held-out; a bad-input failure otherwise.
+pub(crate) fn heldout_seed_range(seed_start: u64, episodes: u64) -> Result<u64, Failure> {
+    let last = seed_start.saturating_add(episodes.saturating_sub(1));
+    if seed_start < FIRST_HELDOUT_SEED || last >= HELDOUT_SEED_END {
+        return Err(Failure::BadInput(format!(
+            "evaluation scenes must be held-out: seeds {seed_start}..={last} are not all within {FIRST_HELDOUT_SEED}..={}",
+            HELDOUT_SEED_END - 1
+        )));
+    }
+    Ok(last)
+}
+
+/// Checks shared by every training command before the interpreter starts: the model
+/// directory must be new and a given config file must exist.
+pub(crate) fn check_training_outputs(out: &Path, config: Option<&Path>) -> Result<(), Failure> {
+    if out.exists() {
+        return Err(Failure::BadInput(format!(
+            "{} already exists; models are never overwritten, choose a new --out",
+            out.display()
+        )));
+    }
+    config.map_or(Ok(()), |config| require_file(config, "config"))
+}
+
+/// The command line as typed (recorded in model cards).
+pub(crate) fn command_line() -> String {
+    std::iter::once("cnfmp".to_owned())
+        .chain(std::env::args().skip(1))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 fn require_file(path: &Path, what: &str) -> Result<(), Failure> {
     if path.is_file() {
         Ok(())
@@ -116,19 +149,8 @@ pub fn train(args: TrainArgs) -> Result<(), Failure> {
             args.dataset.display()
         )));
     }
-    if args.out.exists() {
-        return Err(Failure::BadInput(format!(
-            "{} already exists; models are never overwritten, choose a new --out",
-            args.out.display()
-        )));
-    }
-    if let Some(config) = &args.config {
-        require_file(config, "config")?;
-    }
-    let command = std::iter::once("cnfmp".to_owned())
-        .chain(std::env::args().skip(1))
-        .collect::<Vec<_>>()
-        .join(" ");
+    check_training_outputs(&args.out, args.config.as_deref())?;
+    let command = command_line();
     let request = TrainRequest {
         dataset: args.dataset,
         out: args.out,
@@ -310,14 +332,7 @@ fn mean(values: impl Iterator<Item = f64>) -> f64 {
 }
 
 pub fn eval(args: EvalArgs) -> Result<(), Failure> {
-    let last = args.seed_start.saturating_add(args.episodes - 1);
-    if args.seed_start < FIRST_HELDOUT_SEED || last >= HELDOUT_SEED_END {
-        return Err(Failure::BadInput(format!(
-            "evaluation scenes must be held-out: seeds {}..={last} are not all within {FIRST_HELDOUT_SEED}..={}",
-            args.seed_start,
-            HELDOUT_SEED_END - 1
-        )));
-    }
+    let last = heldout_seed_range(args.seed_start, args.episodes)?;
     let model_task = model_task(&args.model)?;
     if model_task != args.task {
         return Err(Failure::BadInput(format!(

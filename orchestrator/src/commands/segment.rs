@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use clap::{Args, Subcommand};
 use segmenter_bridge::{Bridge, SegmentRequest, Segmentation, SegmenterTrainRequest};
 
-use super::model::{FIRST_HELDOUT_SEED, HELDOUT_SEED_END};
+use super::model::{FIRST_HELDOUT_SEED, check_training_outputs, command_line, heldout_seed_range};
 use super::print_stdout;
 use crate::failure::Failure;
 use crate::files::{write_atomically, write_directory_atomically};
@@ -171,20 +171,13 @@ pub fn run(command: SegmenterCommand) -> Result<(), Failure> {
 }
 
 fn train(args: SegmenterTrainArgs) -> Result<(), Failure> {
-    if args.out.exists() {
-        return Err(Failure::BadInput(format!("{} already exists; models are never overwritten, choose a new --out", args.out.display())));
-    }
-    if let Some(config) = &args.config
-        && !config.is_file()
-    {
-        return Err(Failure::BadInput(format!("config {} does not exist or is not a file", config.display())));
-    }
+    check_training_outputs(&args.out, args.config.as_deref())?;
     if let Some(scale) = args.scenes_scale
         && !(scale > 0.0 && scale.is_finite())
     {
         return Err(Failure::BadInput(format!("--scenes-scale must be a positive number, got {scale}")));
     }
-    let command = std::iter::once("cnfmp".to_owned()).chain(std::env::args().skip(1)).collect::<Vec<_>>().join(" ");
+    let command = command_line();
     let report = Bridge::start_default()?.segmenter_train(SegmenterTrainRequest {
         out: args.out,
         config: args.config,
@@ -197,14 +190,7 @@ fn train(args: SegmenterTrainArgs) -> Result<(), Failure> {
 }
 
 fn eval(args: SegmenterEvalArgs) -> Result<(), Failure> {
-    let last = args.seed_start.saturating_add(args.episodes - 1);
-    if args.seed_start < FIRST_HELDOUT_SEED || last >= HELDOUT_SEED_END {
-        return Err(Failure::BadInput(format!(
-            "evaluation scenes must be held-out: seeds {}..={last} are not all within {FIRST_HELDOUT_SEED}..={}",
-            args.seed_start,
-            HELDOUT_SEED_END - 1
-        )));
-    }
+    let last = heldout_seed_range(args.seed_start, args.episodes)?;
     let bridge = Bridge::start_default()?;
     let mut report = bridge.segmenter_eval(&args.task, args.episodes, args.seed_start, &args.backend.backend, args.backend.weights.clone())?;
     if let Some(path) = &args.json {

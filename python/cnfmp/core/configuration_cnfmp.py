@@ -8,17 +8,16 @@ from the dataset and need not be set in a config file.
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from dataclasses import dataclass, field
 
+from cnfmp.configuration import JsonConfig
 from cnfmp.errors import InputError
 
 MODEL_TYPE = "cnfmp"
 
 
 @dataclass
-class CnfmpConfig:
+class CnfmpConfig(JsonConfig):
     # ---- what the model is for (from data) ----
     #: Task the demonstrations came from (informative; the model itself is task-agnostic).
     task: str = ""
@@ -164,38 +163,6 @@ class CnfmpConfig:
     output_fps: float = 50.0
 
     model_type: str = MODEL_TYPE
-
-    @classmethod
-    def from_file(cls, path: str) -> "CnfmpConfig":
-        """A config from a JSON file of config fields; InputError naming the file when it is
-        unreadable, not a JSON object, or has unknown or invalid fields."""
-        try:
-            with open(path, encoding="utf-8") as f:
-                values = json.load(f)
-        except OSError as err:
-            raise InputError(f"cannot read config {path}: {err.strerror}") from err
-        except ValueError as err:
-            raise InputError(f"config {path} is not valid JSON: {err}") from err
-        if not isinstance(values, dict):
-            raise InputError(f"config {path}: expected a JSON object of config fields")
-        return cls.from_dict(values, source=path)
-
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), indent=2) + "\n"
-
-    @classmethod
-    def from_dict(cls, values: dict, source: str = "config") -> "CnfmpConfig":
-        """A config from a dict; unknown keys are an InputError naming them (a typo in a config
-        file must not be silently ignored)."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise InputError(f"{source}: unknown field(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
-        if values.get("model_type", MODEL_TYPE) != MODEL_TYPE:
-            raise InputError(f"{source}: model_type is {values['model_type']!r}, expected {MODEL_TYPE!r}")
-        config = cls(**values)
-        config.check(source)
-        return config
 
     def check(self, source: str = "config") -> None:
         """InputError for values no model can be built with."""

@@ -7,18 +7,15 @@ Unknown keys are an error, so a config from a different model is never half-read
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from dataclasses import dataclass, field
-from pathlib import Path
 
-from cnfmp.errors import InputError
+from cnfmp.configuration import JsonConfig
 
 MODEL_TYPE = "film-segmenter"
 
 
 @dataclass
-class FilmSegmenterConfig:
+class FilmSegmenterConfig(JsonConfig):
     # ---- network ----
     #: Side (px) of the square input the network sees; images are resized to it and the
     #: probabilities resized back to the image's size.
@@ -83,31 +80,7 @@ class FilmSegmenterConfig:
 
     model_type: str = MODEL_TYPE
 
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), indent=2) + "\n"
-
-    @classmethod
-    def from_dict(cls, values: dict, source: str = "config") -> "FilmSegmenterConfig":
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise InputError(f"{source}: unknown film segmenter config field(s) {', '.join(unknown)}")
-        if values.get("model_type", MODEL_TYPE) != MODEL_TYPE:
-            raise InputError(f"{source}: model_type is {values['model_type']!r}, not {MODEL_TYPE!r}")
-        config = cls(**values)
+    def __post_init__(self):
+        # JSON has no tuples: ranges read back from config.json arrive as lists.
         for name in ("brightness", "contrast", "gamma"):
-            setattr(config, name, tuple(getattr(config, name)))
-        return config
-
-    @classmethod
-    def from_file(cls, path: str | Path) -> "FilmSegmenterConfig":
-        path = Path(path)
-        try:
-            values = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise InputError(f"{path} does not exist") from None
-        except (OSError, json.JSONDecodeError) as err:
-            raise InputError(f"{path} is not a readable JSON config: {err}") from None
-        if not isinstance(values, dict):
-            raise InputError(f"{path}: expected a JSON object of config fields")
-        return cls.from_dict(values, str(path))
+            setattr(self, name, tuple(getattr(self, name)))
