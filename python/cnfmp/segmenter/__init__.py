@@ -64,10 +64,10 @@ def segment(image: np.ndarray, prompt: str, backend: Backend | str = "auto") -> 
     """
     started = time.perf_counter()
     image = check_image(image)
+    prompt = _phrases.check_prompt(prompt)
     found = _phrases.parse(prompt)
-    if not found:  # nothing from the vocabulary: let the backend try the prompt as a whole
-        text = _phrases.check_prompt(prompt)
-        found = [_phrases.Phrase(text, "unknown", None, None, (0, len(text)))]
+    if not found:  # nothing from the vocabulary: the prompt as a whole is the one phrase
+        found = [_phrases.Phrase(prompt, "unknown", None, None, (0, len(prompt)))]
     backend = load_backend(backend) if isinstance(backend, str) else backend
     parsed = time.perf_counter()
     # A closed-vocabulary backend is not asked about what the vocabulary cannot ground: its
@@ -82,7 +82,7 @@ def segment(image: np.ndarray, prompt: str, backend: Backend | str = "auto") -> 
     done = time.perf_counter()
     timings = {"parse": 1e3 * (parsed - started), "ground": 1e3 * (grounded - parsed),
                "postprocess": 1e3 * (done - grounded), "total": 1e3 * (done - started)}
-    return Segmentation(_phrases.check_prompt(prompt), backend.name, found, results, probabilities, labels, timings)
+    return Segmentation(prompt, backend.name, found, results, probabilities, labels, timings)
 
 
 def order_by_roles(segmentation: Segmentation, task: str) -> list[int]:
