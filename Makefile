@@ -26,8 +26,8 @@ setup-venv:  ## the Python venv (.venv, on a base venv cached by the lock's hash
 build: setup-venv  ## release build of the cnfmp binary
 	cargo build --release --locked --workspace
 
-demo: setup  ## the main job on the embedded defaults (for now: the environment report)
-	$(CNFMP) doctor
+demo: setup  ## the main job: serve the shipped models, send a held-out scene over HTTP, execute the answer
+	$(CNFMP) demo
 
 test: setup test-rust test-python  ## every test: cargo test --workspace, then pytest
 

@@ -11,6 +11,14 @@ pub enum Failure {
 }
 
 impl Failure {
+    /// The same failure with `context` (what was being done) before its message.
+    pub fn with_context(self, context: &str) -> Self {
+        match self {
+            Failure::BadInput(message) => Failure::BadInput(format!("{context}: {message}")),
+            Failure::Environment(message) => Failure::Environment(format!("{context}: {message}")),
+        }
+    }
+
     pub fn exit_code(&self) -> i32 {
         match self {
             Failure::BadInput(_) => 2,
@@ -36,7 +44,9 @@ impl From<crate::trajectory::TrajectoryError> for Failure {
 impl From<segmenter_bridge::BridgeError> for Failure {
     fn from(err: segmenter_bridge::BridgeError) -> Self {
         match err {
-            segmenter_bridge::BridgeError::InvalidInput(message) => Failure::BadInput(message),
+            segmenter_bridge::BridgeError::InvalidInput(message) | segmenter_bridge::BridgeError::NotGrounded(message) => {
+                Failure::BadInput(message)
+            }
             other => Failure::Environment(other.to_string()),
         }
     }

@@ -11,4 +11,5 @@ pub mod failure;
 pub mod files;
 pub mod images;
 pub mod progress;
+pub mod serve;
 pub mod trajectory;

@@ -42,6 +42,11 @@ enum Command {
     Predict(model::PredictArgs),
     /// Evaluate a model on held-out simulator scenes: MED against the expert and success by physics.
     Eval(model::EvalArgs),
+    /// Serve the HTTP API: POST a scene image and a prompt to /v1/trajectories, get a trajectory.
+    Serve(cnfmp::serve::ServeArgs),
+    /// The main job end to end: serve the shipped models, send a held-out scene and its prompt
+    /// over HTTP, execute the returned trajectory in the simulator, write an overlay picture.
+    Demo(commands::demo::DemoArgs),
 }
 
 fn main() {
@@ -56,6 +61,8 @@ fn main() {
         Command::Segmenter(command) => commands::segment::run(command),
         Command::Predict(args) => model::predict(args),
         Command::Eval(args) => model::eval(args),
+        Command::Serve(args) => cnfmp::serve::run(args),
+        Command::Demo(args) => commands::demo::run(args),
     };
     if let Err(failure) = result {
         eprintln!("error: {failure}");

@@ -89,7 +89,31 @@ pub struct Prediction {
     pub timings_ms: serde_json::Map<String, serde_json::Value>,
 }
 
+/// A loaded model, as `cnfmp.core.api.describe` reports it.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct ModelDescription {
+    pub task: String,
+    #[serde(rename = "type")]
+    pub model_type: String,
+    /// Object slot names (label order) of the training scenes.
+    pub objects: Vec<String>,
+    /// Slots the model uses (labels beyond are background).
+    pub task_objects: u32,
+    pub parameters: u64,
+    /// The prompt role filling each slot, or None when prompts cannot drive this task.
+    pub roles: Option<Vec<String>>,
+    /// Rate (Hz) and length (s) of the trajectories it produces.
+    pub output_fps: f64,
+    pub duration_s: f64,
+}
+
 impl Bridge {
+    /// Loads the model in `model_dir` (it stays resident for later predictions) and
+    /// describes it (`cnfmp.core.api.describe`).
+    pub fn core_describe(&self, model_dir: &Path) -> Result<ModelDescription, BridgeError> {
+        self.call_json("cnfmp.core.api", "describe", (model_dir.to_path_buf(),))
+    }
+
     /// Trains a model (`cnfmp.core.api.train`); progress lines go to stderr.
     pub fn core_train(&self, request: &TrainRequest) -> Result<TrainReport, BridgeError> {
         let r = request.clone();

@@ -94,6 +94,11 @@ pub enum BridgeError {
     /// says what and how to fix it.
     #[error("{0}")]
     InvalidInput(String),
+    /// The prompt cannot drive the model (Python raised `cnfmp.errors.NotGrounded`): a role
+    /// the model needs is missing from the prompt or its object was not found in the image.
+    /// A kind of invalid input; servers answer it differently from a malformed request.
+    #[error("{0}")]
+    NotGrounded(String),
     /// A Python exception raised inside a call.
     #[error("Python raised {0}")]
     Python(PythonException),
@@ -109,16 +114,29 @@ pub enum BridgeError {
 }
 
 impl BridgeError {
-    /// Wraps a `PyErr` raised while attached: `cnfmp.errors.InputError` becomes
+    /// Wraps a `PyErr` raised while attached: `cnfmp.errors.NotGrounded` becomes
+    /// [`BridgeError::NotGrounded`], any other `cnfmp.errors.InputError`
     /// [`BridgeError::InvalidInput`], anything else [`BridgeError::Python`].
     pub(crate) fn python(py: Python<'_>, err: &PyErr) -> Self {
-        let input_error = py.import("cnfmp.errors").and_then(|module| module.getattr("InputError"));
-        match input_error {
-            Ok(class) if err.is_instance(py, &class) => {
-                BridgeError::InvalidInput(PythonException::from_pyerr(py, err).message)
-            }
-            _ => BridgeError::Python(PythonException::from_pyerr(py, err)),
+        let is = |name: &str| {
+            py.import("cnfmp.errors")
+                .and_then(|module| module.getattr(name))
+                .is_ok_and(|class| err.is_instance(py, &class))
+        };
+        let exception = PythonException::from_pyerr(py, err);
+        if is("NotGrounded") {
+            BridgeError::NotGrounded(exception.message)
+        } else if is("InputError") {
+            BridgeError::InvalidInput(exception.message)
+        } else {
+            BridgeError::Python(exception)
         }
+    }
+
+    /// True for the caller's mistakes ([`BridgeError::InvalidInput`] and
+    /// [`BridgeError::NotGrounded`]), false for failures of the environment or the code.
+    pub fn is_bad_input(&self) -> bool {
+        matches!(self, BridgeError::InvalidInput(_) | BridgeError::NotGrounded(_))
     }
 }
 

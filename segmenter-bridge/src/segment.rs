@@ -23,6 +23,8 @@ pub struct SegmentRequest {
     pub weights: Option<PathBuf>,
     /// Order the label map for a core model of this task (label k = its k-th object slot).
     pub task: Option<String>,
+    /// Also encode the per-phrase mask PNGs and the overlay (false leaves them empty).
+    pub pictures: bool,
 }
 
 /// One phrase of the prompt and what was found for it.
@@ -78,9 +80,9 @@ pub struct Segmentation {
     pub document: SegmentDocument,
     /// 8-bit label map PNG (slot order when a task was given, phrase order otherwise).
     pub labels_png: Vec<u8>,
-    /// One 0/255 mask PNG per phrase, in phrase order.
+    /// One 0/255 mask PNG per phrase, in phrase order (empty unless pictures were asked for).
     pub mask_pngs: Vec<Vec<u8>>,
-    /// The image with the masks drawn on it (PNG).
+    /// The image with the masks drawn on it (PNG; empty unless pictures were asked for).
     pub overlay_png: Vec<u8>,
     /// The phrases in label-map order (the object names a core model gets).
     pub slot_names: Vec<String>,
@@ -110,6 +112,7 @@ impl Bridge {
                     request.backend,
                     request.weights,
                     request.task,
+                    request.pictures,
                 );
                 let result = py.import("cnfmp.segmenter.api")?.call_method1("segment", args)?;
                 let dict = result.cast::<pyo3::types::PyDict>()?;
@@ -126,6 +129,19 @@ impl Bridge {
         let document = serde_json::from_str(&document)
             .map_err(|err| BridgeError::Protocol(format!("cnfmp.segmenter.api.segment: {err}")))?;
         Ok(Segmentation { document, labels_png, mask_pngs, overlay_png, slot_names })
+    }
+
+    /// Loads segmenter `backend` (weights from `weights` or its default location) and warms
+    /// it up on a blank image (`cnfmp.segmenter.api.preload`). Returns the backend's name
+    /// (what `auto` resolved to).
+    pub fn segmenter_preload(&self, backend: &str, weights: Option<PathBuf>) -> Result<String, BridgeError> {
+        let backend = backend.to_owned();
+        self.call(move |py| {
+            let run = || -> PyResult<String> {
+                py.import("cnfmp.segmenter.api")?.call_method1("preload", (backend, weights))?.extract()
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })
     }
 
     /// Trains the film segmenter (`cnfmp.segmenter.api.train`); progress on stderr. Returns

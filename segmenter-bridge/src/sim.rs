@@ -176,6 +176,31 @@ impl Bridge {
     /// Writes a LeRobot v3.0 dataset of `episodes` expert demonstrations of `task` from seeds
     /// `seed`, `seed + 1`, ... into `out` (which must not exist), with `workers` processes
     /// and a progress bar on stderr.
+    /// Draws a predicted motion on its scene (`cnfmp.sim.api.draw_trajectory`): the encoded
+    /// camera image with the objects of `labels` (an encoded label map of the same size)
+    /// tinted, and the TCP path (`position`, (T, 3) m) projected through the front camera with
+    /// a ring wherever `gripper` ((T,), [0, 1]) closes or opens. Returns the PNG bytes.
+    pub fn sim_draw_trajectory(
+        &self,
+        image: Vec<u8>,
+        labels: Option<Vec<u8>>,
+        position: Array2<f64>,
+        gripper: Array1<f64>,
+    ) -> Result<Vec<u8>, BridgeError> {
+        self.call(move |py| {
+            let args = (
+                pyo3::types::PyBytes::new(py, &image),
+                labels.map(|labels| pyo3::types::PyBytes::new(py, &labels)),
+                position.into_pyarray(py),
+                gripper.into_pyarray(py),
+            );
+            let run = || -> PyResult<Vec<u8>> {
+                py.import("cnfmp.sim.api")?.call_method1("draw_trajectory", args)?.extract()
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })
+    }
+
     pub fn dataset_generate(&self, task: &str, episodes: u64, seed: u64, out: &Path, workers: u32) -> Result<DatasetReport, BridgeError> {
         self.call_json("cnfmp.data.generate", "generate_dataset", (task.to_owned(), episodes, seed, out.to_path_buf(), workers))
     }

@@ -1,6 +1,7 @@
 //! One module per top-level `cnfmp` subcommand; each exposes `run(args) -> Result<(), Failure>`.
 
 pub mod dataset;
+pub mod demo;
 pub mod doctor;
 pub mod model;
 pub mod segment;

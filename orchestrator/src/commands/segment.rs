@@ -98,13 +98,15 @@ pub(crate) fn read_image(path: &Path) -> Result<Vec<u8>, Failure> {
     fs::read(path).map_err(|err| Failure::BadInput(format!("cannot read image {}: {err}", path.display())))
 }
 
-/// Segments `image` for `prompt`; with `task`, the label map is ordered for that task's models.
+/// Segments `image` for `prompt`; with `task`, the label map is ordered for that task's
+/// models; with `pictures`, the per-phrase masks and the overlay are encoded too.
 pub(crate) fn run_segmenter(
     bridge: &Bridge,
     image: Vec<u8>,
     prompt: &str,
     backend: &BackendArgs,
     task: Option<&str>,
+    pictures: bool,
 ) -> Result<Segmentation, Failure> {
     Ok(bridge.segment(SegmentRequest {
         image,
@@ -112,6 +114,7 @@ pub(crate) fn run_segmenter(
         backend: backend.backend.clone(),
         weights: backend.weights.clone(),
         task: task.map(str::to_owned),
+        pictures,
     })?)
 }
 
@@ -134,7 +137,7 @@ pub(crate) fn describe(segmentation: &Segmentation) -> String {
 pub fn segment(args: SegmentArgs) -> Result<(), Failure> {
     let image = read_image(&args.image)?;
     let bridge = Bridge::start_default()?;
-    let result = run_segmenter(&bridge, image, &args.prompt, &args.backend, None)?;
+    let result = run_segmenter(&bridge, image, &args.prompt, &args.backend, None, true)?;
     let document = serde_json::to_string_pretty(&result.document).expect("segmentation serialises");
     let objects = serde_json::json!({"prompt": args.prompt, "objects": result.slot_names});
     let mut files = vec![

@@ -18,7 +18,7 @@ from cnfmp.core.modeling_cnfmp import CONFIG_FILE, WEIGHTS_FILE, load_model
 from cnfmp.errors import InputError
 from cnfmp.images import decode_image, decode_labels
 
-__all__ = ["predict", "train"]
+__all__ = ["describe", "predict", "train"]
 
 _LOADED: dict[str, tuple[tuple, Predictor]] = {}
 
@@ -82,7 +82,7 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
         slots.append({
             "slot": slot + 1, "name": objects[slot] if slot < len(objects) else c.object_names[slot],
             "present": present,
-            "weights": result["weights"][slot].round(5).tolist() if present else None,
+            "weights": result["weights"][slot].astype(np.float64).round(5).tolist() if present else None,
             "reconstruction_mse": result["object_mse"][slot], "psnr_db": result["object_psnr_db"][slot],
             "mask_iou": result["mask_iou"][slot],
         })
@@ -94,4 +94,21 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
         "timings_ms": {"decode_inputs": 1000 * (decoded - started), "infer_latents": 1000 * seconds["infer"],
                        "decode_trajectory": 1000 * seconds["decode"],
                        "total": 1000 * (time.perf_counter() - started)},
+    })
+
+
+def describe(model_dir: str) -> str:
+    """Loads `model_dir` (it stays resident, so the first request does not pay for it) and
+    describes it as JSON: ``{"task", "type", "objects": [slot names], "task_objects",
+    "parameters", "roles": [what fills each slot from a prompt, or null when prompts cannot
+    be mapped onto this task], "output_fps", "duration_s"}``."""
+    from cnfmp.segmenter import phrases
+
+    model = predictor(model_dir)
+    c = model.config
+    roles = phrases.vocabulary()["task_roles"].get(c.task)
+    return json.dumps({
+        "task": c.task, "type": c.model_type, "objects": list(c.object_names),
+        "task_objects": c.task_objects or c.num_objects, "parameters": model.model.parameter_count(),
+        "roles": roles, "output_fps": c.output_fps, "duration_s": c.duration_s,
     })

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cnfmp.errors import InputError
+from cnfmp.errors import NotGrounded
 from cnfmp.segmenter import phrases as _phrases
 from cnfmp.segmenter.base import Backend, check_image, load_backend
 from cnfmp.segmenter.postprocess import ObjectMask, extract, label_map
@@ -89,23 +89,23 @@ def order_by_roles(segmentation: Segmentation, task: str) -> list[int]:
     """For a model of `task`, the phrase index that fills each object slot: slot k takes the
     first phrase whose role is the task's k-th role (``task_roles`` in prompts/vocabulary.json).
 
-    Raises InputError when the task has no roles on record or the prompt lacks one, or when
+    Raises NotGrounded when the task has no roles on record or the prompt lacks one, or when
     a needed object was not found in the image.
     """
     roles = _phrases.vocabulary()["task_roles"].get(task)
     if roles is None:
         known = ", ".join(sorted(_phrases.vocabulary()["task_roles"]))
-        raise InputError(f"prompts cannot yet be mapped onto {task} models (roles are known for {known}); "
+        raise NotGrounded(f"prompts cannot yet be mapped onto {task} models (roles are known for {known}); "
                          "pass coarse masks instead")
     order = []
     for role in roles:
         index = next((k for k, p in enumerate(segmentation.phrases) if p.role == role), None)
         if index is None:
             named = ", ".join(f"{p.text!r} ({p.role})" for p in segmentation.phrases)
-            raise InputError(f"a {task} model needs a {role} in the prompt ({' and '.join(roles)}); "
+            raise NotGrounded(f"a {task} model needs a {role} in the prompt ({' and '.join(roles)}); "
                              f"the prompt names {named}")
         if not segmentation.results[index].found:
-            raise InputError(f"the {role} {segmentation.phrases[index].text!r} was not found in the image "
+            raise NotGrounded(f"the {role} {segmentation.phrases[index].text!r} was not found in the image "
                              f"(best score {segmentation.results[index].score:.2f})")
         order.append(index)
     return order

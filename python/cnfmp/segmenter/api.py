@@ -31,6 +31,14 @@ def backend(name: str = "auto", weights: str | None = None) -> Backend:
     return _BACKENDS[key]
 
 
+def preload(name: str = "auto", weights: str | None = None) -> str:
+    """Loads backend `name` and runs it once on a blank image, so a server's first request
+    pays neither for loading nor for first-call warm-up. Returns the backend's name."""
+    loaded = backend(name, weights)
+    segment_array(np.full((128, 128, 3), 128, dtype=np.uint8), "put the red cube on the paper", loaded)
+    return loaded.name
+
+
 def draw_overlay(image: np.ndarray, segmentation: Segmentation) -> np.ndarray:
     """(H, W, 3) uint8 image with each found mask tinted, outlined and labelled, upscaled
     (nearest) to at least :data:`_OVERLAY_SIDE` px."""
@@ -59,13 +67,15 @@ def draw_overlay(image: np.ndarray, segmentation: Segmentation) -> np.ndarray:
 
 
 def segment(image_data: bytes, prompt: str, backend_name: str = "auto", weights: str | None = None,
-            task: str | None = None) -> dict:
+            task: str | None = None, pictures: bool = True) -> dict:
     """Segments an encoded image for `prompt`.
 
     Args:
         task: when given, the label map is ordered for a core model of that task (label k =
             the phrase filling the model's k-th object slot, see
             :func:`cnfmp.segmenter.order_by_roles`) and the JSON gains ``"slots"``.
+        pictures: when False, ``mask_pngs`` and ``overlay_png`` are left empty (a server
+            answering with JSON does not pay for encoding them).
 
     Returns ``{"json": str (Segmentation.to_dict()), "labels_png": bytes (8-bit label map),
     "mask_pngs": [bytes] (one 0/255 mask per phrase), "overlay_png": bytes,
@@ -86,8 +96,8 @@ def segment(image_data: bytes, prompt: str, backend_name: str = "auto", weights:
     return {
         "json": json.dumps(document),
         "labels_png": encode_png(labels),
-        "mask_pngs": [encode_png((r.mask * 255).astype(np.uint8)) for r in result.results],
-        "overlay_png": encode_png(draw_overlay(image, result)),
+        "mask_pngs": [encode_png((r.mask * 255).astype(np.uint8)) for r in result.results] if pictures else [],
+        "overlay_png": encode_png(draw_overlay(image, result)) if pictures else b"",
         "slot_names": [result.phrases[i].text for i in order],
     }
 

@@ -16,10 +16,13 @@ import numpy as np
 
 from cnfmp.errors import InputError
 from cnfmp.sim import engine
-from cnfmp.sim.scene import CONTROL_HZ
+from cnfmp.sim.scene import CONTROL_HZ, IMAGE_SIZE, project_to_image
 from cnfmp.sim.task import check_seed, get_task, task_names
 
-__all__ = ["CONTROL_HZ", "execute", "expert", "render", "task_names", "tasks_json"]
+__all__ = ["CONTROL_HZ", "draw_trajectory", "execute", "expert", "render", "task_names", "tasks_json"]
+
+#: Trajectory overlays are drawn this large (px) so the path is legible.
+_OVERLAY_SIDE = 512
 
 
 def tasks_json() -> str:
@@ -103,3 +106,56 @@ def execute(task: str, seed: int, position, orientation, gripper) -> str:
         "success": verdict.success, "reasons": verdict.reasons, "metrics": verdict.metrics,
         "frames": frames, "duration_s": frames / CONTROL_HZ,
     })
+
+
+def draw_trajectory(image_data: bytes, labels_data: bytes | None, position, gripper) -> bytes:
+    """A picture of a predicted motion: the scene image (upscaled to 512 px) with each
+    labelled object tinted and outlined, and the end-effector path projected through the
+    front camera, coloured from blue (start) to red (end), with a ring wherever the gripper
+    closes or opens.
+
+    Args:
+        image_data: the encoded camera image (128x128, the simulator camera's view).
+        labels_data: an encoded 8-bit label map of the same size, or None.
+        position: (T, 3) TCP positions (m); gripper: (T,) openings in [0, 1].
+
+    Returns the PNG bytes.
+    """
+    import cv2
+
+    from cnfmp.images import decode_image, decode_labels, encode_png
+
+    image = decode_image(image_data)
+    height, width = image.shape[:2]
+    scale = _OVERLAY_SIDE / max(height, width)
+    big = cv2.resize(image, (round(width * scale), round(height * scale)), interpolation=cv2.INTER_NEAREST)
+    if labels_data is not None:
+        labels = decode_labels(labels_data)
+        if labels.shape != (height, width):
+            raise InputError(f"the label map is {labels.shape[1]}x{labels.shape[0]} but the image is {width}x{height}")
+        labels = cv2.resize(labels, big.shape[1::-1], interpolation=cv2.INTER_NEAREST)
+        for label in range(1, int(labels.max(initial=0)) + 1):
+            mask = (labels == label).astype(np.uint8)
+            colour = np.array(_LABEL_COLOURS[(label - 1) % len(_LABEL_COLOURS)], dtype=np.float64)
+            big[mask > 0] = (0.6 * big[mask > 0] + 0.4 * colour).astype(np.uint8)
+            contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            cv2.drawContours(big, contours, -1, tuple(int(c) for c in colour), 2, cv2.LINE_AA)
+    position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+    gripper = np.asarray(gripper, dtype=np.float64).reshape(-1)
+    pixels = project_to_image(position) * (big.shape[1] / IMAGE_SIZE)
+    points = np.round(pixels).astype(np.int64)
+    visible = np.isfinite(pixels).all(axis=1)
+    steps = max(len(points) - 1, 1)
+    for k in range(len(points) - 1):
+        if visible[k] and visible[k + 1]:
+            colour = (int(255 * k / steps), 40, int(255 * (1 - k / steps)))
+            cv2.line(big, tuple(map(int, points[k])), tuple(map(int, points[k + 1])), colour, 2, cv2.LINE_AA)
+    closed = gripper < 0.5
+    for k in np.flatnonzero(closed[1:] != closed[:-1]) + 1:
+        if visible[k]:
+            cv2.circle(big, tuple(map(int, points[k])), 9, (255, 255, 255), 2, cv2.LINE_AA)
+    return encode_png(big)
+
+
+#: Object tints (RGB) per label, cycled.
+_LABEL_COLOURS = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180)]

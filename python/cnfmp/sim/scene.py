@@ -22,6 +22,12 @@ CONTROL_HZ = 50
 FINGER_TRAVEL = 0.045
 #: Camera image size (pixels).
 IMAGE_SIZE = 128
+#: The fixed front camera: position (m), image x and y axes in the world frame (MuJoCo's
+#: ``xyaxes``; the camera looks along -(x cross y)), vertical field of view (degrees).
+CAMERA_POSITION = (0.0, -0.42, 0.50)
+CAMERA_XYAXES = (1.0, 0.0, 0.0, 0.0, 0.76, 0.65)
+CAMERA_FOVY_DEG = 45.0
+_CAMERA_POS, _CAMERA_XYAXES = (" ".join(map(str, v)) for v in (CAMERA_POSITION, CAMERA_XYAXES))
 #: Gripper pose at the start of every expert trajectory: above the table, fingers down.
 HOME_POSITION = np.array([0.0, -0.05, 0.40])
 HOME_QUAT = geometry.quat_down(0.0)
@@ -80,7 +86,7 @@ def scene_xml(objects: str, extra_equality: str = "", table_rgba: str = "0.72 0.
   </visual>
   <worldbody>
     <light pos="0.3 -0.4 1.5" dir="-0.2 0.25 -1" diffuse="0.5 0.5 0.5" castshadow="false"/>
-    <camera name="front" pos="0 -0.42 0.50" xyaxes="1 0 0 0 0.76 0.65" fovy="45"/>
+    <camera name="front" pos="{_CAMERA_POS}" xyaxes="{_CAMERA_XYAXES}" fovy="{CAMERA_FOVY_DEG}"/>
     <geom name="floor" type="plane" size="2 2 0.1" pos="0 0 -0.75" rgba="0.35 0.36 0.38 1"/>
     <geom name="table" type="box" size="0.5 0.42 0.02" pos="0 0 -0.02" rgba="{table_rgba}" friction="1 0.005 0.0001"/>
     {objects}
@@ -92,3 +98,24 @@ def scene_xml(objects: str, extra_equality: str = "", table_rgba: str = "0.72 0.
   </equality>
 </mujoco>
 """
+
+
+def project_to_image(points: np.ndarray) -> np.ndarray:
+    """World points (N, 3) in metres -> (N, 2) pixel coordinates [column, row] of the front
+    camera's IMAGE_SIZE x IMAGE_SIZE image (pinhole model, as MuJoCo renders it; pixel centres
+    at +0.5). Points behind the camera come out as NaN."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    x_axis, y_axis = np.array(CAMERA_XYAXES[:3]), np.array(CAMERA_XYAXES[3:])
+    x_axis /= np.linalg.norm(x_axis)
+    y_axis -= x_axis * (x_axis @ y_axis)
+    y_axis /= np.linalg.norm(y_axis)
+    z_axis = np.cross(x_axis, y_axis)
+    offset = points - np.array(CAMERA_POSITION)
+    depth = -(offset @ z_axis)
+    focal = 0.5 * IMAGE_SIZE / np.tan(np.radians(CAMERA_FOVY_DEG) / 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        column = 0.5 * IMAGE_SIZE + focal * (offset @ x_axis) / depth
+        row = 0.5 * IMAGE_SIZE - focal * (offset @ y_axis) / depth
+    pixels = np.stack([column, row], axis=1)
+    pixels[depth <= 0] = np.nan
+    return pixels

@@ -1,0 +1,266 @@
+//! `cnfmp demo` (what `make demo` runs): the main job end to end, the way a lab's robot stack
+//! uses cnfmp. It starts `cnfmp serve` with the shipped models on a free loopback port,
+//! renders a held-out scene, sends the image and its prompt over HTTP, executes the returned
+//! trajectory in the simulator, prints the stages' timings and the verdict, writes an
+//! overlay picture and the trajectory, and stops the server with SIGTERM.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdout, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use base64::Engine;
+use clap::Args;
+use segmenter_bridge::Bridge;
+use serde_json::{Map, Value};
+
+use super::model::{FIRST_HELDOUT_SEED, heldout_seed_range};
+use super::print_stdout;
+use crate::failure::Failure;
+use crate::files::write_atomically;
+use crate::serve::LISTENING;
+use crate::serve::api::{ErrorResponse, TrajectoryResponse};
+use crate::trajectory::resample::{ResampleTarget, resample};
+use crate::trajectory::{Frame, Pose, Trajectory};
+
+/// How long the server may take to load Python, torch and the models.
+const SERVER_START_TIMEOUT: Duration = Duration::from_secs(300);
+
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Task of the scene; its model must be promptable (language_pick_place, wall_avoidance,
+    /// incline_pick_place).
+    #[arg(long, default_value = "language_pick_place")]
+    task: String,
+    /// Held-out scene seed (1000000..=1999999).
+    #[arg(long, default_value_t = FIRST_HELDOUT_SEED + 3)]
+    seed: u64,
+    /// The prompt to send (default: the scene's own instruction).
+    #[arg(long)]
+    prompt: Option<String>,
+    /// The models directory the server serves.
+    #[arg(long, default_value = "models")]
+    models: PathBuf,
+    /// Output directory (created if needed; its files are replaced): image.png, overlay.png,
+    /// trajectory.json, response.json.
+    #[arg(long, default_value = "demo-output")]
+    out: PathBuf,
+}
+
+/// The server child process; dropping it stops the server (SIGTERM, then SIGKILL).
+struct ServerProcess {
+    child: Child,
+}
+
+impl ServerProcess {
+    fn start(models: &Path) -> Result<(ServerProcess, ChildStdout), Failure> {
+        let exe = std::env::current_exe()
+            .map_err(|err| Failure::Environment(format!("cannot find the cnfmp binary: {err}")))?;
+        let mut child = Command::new(exe)
+            .args(["serve", "--addr", "127.0.0.1:0", "--models"])
+            .arg(models)
+            .stdout(Stdio::piped())
+            .stdin(Stdio::null())
+            .spawn()
+            .map_err(|err| Failure::Environment(format!("cannot start `cnfmp serve`: {err}")))?;
+        let stdout = child.stdout.take().expect("stdout is piped");
+        Ok((ServerProcess { child }, stdout))
+    }
+
+    /// SIGTERM, then waits up to `grace` for a clean exit; returns whether it exited 0.
+    fn stop(&mut self, grace: Duration) -> bool {
+        // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
+        unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
+        let deadline = Instant::now() + grace;
+        while Instant::now() < deadline {
+            match self.child.try_wait() {
+                Ok(Some(status)) => return status.success(),
+                Ok(None) => std::thread::sleep(Duration::from_millis(50)),
+                Err(_) => break,
+            }
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        false
+    }
+}
+
+impl Drop for ServerProcess {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            self.stop(Duration::from_secs(10));
+        }
+    }
+}
+
+/// Waits for the server's "listening on" line; returns the base URL.
+fn wait_until_listening(stdout: ChildStdout) -> Result<String, Failure> {
+    let (found, listening) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if let Some(addr) = line.strip_prefix(LISTENING) {
+                let _ = found.send(format!("http://{addr}"));
+            }
+        }
+    });
+    listening.recv_timeout(SERVER_START_TIMEOUT).map_err(|err| {
+        Failure::Environment(match err {
+            mpsc::RecvTimeoutError::Timeout => format!("the server did not listen within {} s", SERVER_START_TIMEOUT.as_secs()),
+            mpsc::RecvTimeoutError::Disconnected => "the server exited before listening (its error is above)".into(),
+        })
+    })
+}
+
+/// A `multipart/form-data` body of text fields and one PNG file field named "image";
+/// returns (content type, body).
+pub fn multipart_form(image_png: &[u8], fields: &[(&str, &str)]) -> (String, Vec<u8>) {
+    let boundary = "cnfmp-form-boundary-8d1f4c";
+    let mut body = Vec::new();
+    for (name, value) in fields {
+        body.extend_from_slice(format!("--{boundary}\r\nContent-Disposition: form-data; name=\"{name}\"\r\n\r\n{value}\r\n").as_bytes());
+    }
+    body.extend_from_slice(
+        format!("--{boundary}\r\nContent-Disposition: form-data; name=\"image\"; filename=\"scene.png\"\r\nContent-Type: image/png\r\n\r\n")
+            .as_bytes(),
+    );
+    body.extend_from_slice(image_png);
+    body.extend_from_slice(format!("\r\n--{boundary}--\r\n").as_bytes());
+    (format!("multipart/form-data; boundary={boundary}"), body)
+}
+
+/// POSTs the scene to the server as a robot stack would; returns the parsed answer and the
+/// client's round-trip time (s).
+fn request_trajectory(base: &str, image: &[u8], prompt: &str, task: &str) -> Result<(TrajectoryResponse, String, f64), Failure> {
+    let agent = ureq::Agent::new_with_config(
+        ureq::config::Config::builder().http_status_as_error(false).timeout_global(Some(Duration::from_secs(120))).build(),
+    );
+    let (content_type, body) = multipart_form(image, &[("prompt", prompt), ("task", task), ("include_masks", "true")]);
+    let sent = Instant::now();
+    let mut response = agent
+        .post(format!("{base}/v1/trajectories"))
+        .header("Content-Type", content_type)
+        .send(&body[..])
+        .map_err(|err| Failure::Environment(format!("the request failed: {err}")))?;
+    let text = response
+        .body_mut()
+        .with_config()
+        .limit(64 * 1024 * 1024)
+        .read_to_string()
+        .map_err(|err| Failure::Environment(format!("cannot read the answer: {err}")))?;
+    let round_trip = sent.elapsed().as_secs_f64();
+    if !response.status().is_success() {
+        let message = serde_json::from_str::<ErrorResponse>(&text)
+            .map(|e| format!("{} ({})", e.error.message, e.error.code))
+            .unwrap_or(text);
+        return Err(Failure::BadInput(format!("the server answered {}: {message}", response.status())));
+    }
+    let answer = serde_json::from_str(&text)
+        .map_err(|err| Failure::Environment(format!("the server's answer does not match the API: {err}")))?;
+    Ok((answer, text, round_trip))
+}
+
+/// The answer's trajectory as a validated [`Trajectory`] (prompt and model as metadata).
+fn trajectory_of(answer: &TrajectoryResponse) -> Result<Trajectory, Failure> {
+    let frames = answer
+        .frames
+        .iter()
+        .map(|f| {
+            let [w, x, y, z] = f.orientation;
+            Frame {
+                t: f.t,
+                pose: Pose {
+                    position: nalgebra::Vector3::from(f.position),
+                    orientation: nalgebra::UnitQuaternion::new_normalize(nalgebra::Quaternion::new(w, x, y, z)),
+                },
+                gripper: f.gripper,
+            }
+        })
+        .collect();
+    let mut metadata = Map::new();
+    metadata.insert("prompt".into(), Value::from(answer.prompt.clone()));
+    metadata.insert("model".into(), Value::from(answer.model.name.clone()));
+    Trajectory::new(answer.fps, frames, metadata)
+        .map_err(|err| Failure::Environment(format!("the server returned an invalid trajectory: {err}")))
+}
+
+pub fn run(args: DemoArgs) -> Result<(), Failure> {
+    heldout_seed_range(args.seed, 1)?;
+    if !args.models.is_dir() {
+        return Err(Failure::BadInput(format!("the models directory {} does not exist", args.models.display())));
+    }
+    std::fs::create_dir_all(&args.out)
+        .map_err(|err| Failure::BadInput(format!("cannot create {}: {err}", args.out.display())))?;
+    // The server loads while this process renders the scene.
+    eprintln!("starting `cnfmp serve` with the models in {} ...", args.models.display());
+    let (mut server, server_stdout) = ServerProcess::start(&args.models)?;
+    let bridge = Bridge::start_default()?;
+    let scratch = tempfile::tempdir().map_err(|err| Failure::Environment(format!("cannot create a temporary directory: {err}")))?;
+    let scene = bridge.sim_render(&args.task, args.seed, &scratch.path().join("scene"))?;
+    let image = std::fs::read(scratch.path().join("scene/image.png"))
+        .map_err(|err| Failure::Environment(format!("cannot read the rendered image: {err}")))?;
+    let prompt = args.prompt.clone().unwrap_or_else(|| scene.prompt.clone());
+    eprintln!("rendered held-out {} scene {} ({}); waiting for the server ...", args.task, args.seed, scene.objects.join(", "));
+    let base = wait_until_listening(server_stdout)?;
+
+    eprintln!("POST {base}/v1/trajectories  prompt={prompt:?}");
+    let (answer, answer_text, round_trip_s) = request_trajectory(&base, &image, &prompt, &args.task)?;
+    let trajectory = trajectory_of(&answer)?;
+    let control_hz = bridge.sim_control_hz()?;
+    let executed = bridge.sim_execute(&args.task, args.seed, resample(&trajectory, ResampleTarget::Fps(control_hz))?.to_arrays());
+    let (success, reasons) = match executed {
+        Ok(verdict) => (verdict.success, verdict.reasons),
+        Err(err) if err.is_bad_input() => (false, vec![format!("not executed: {err}")]),
+        Err(err) => return Err(err.into()),
+    };
+
+    let masks = answer
+        .masks_png_base64
+        .as_deref()
+        .map(|text| base64::engine::general_purpose::STANDARD.decode(text))
+        .transpose()
+        .map_err(|err| Failure::Environment(format!("the server's masks are not base64: {err}")))?;
+    let arrays = trajectory.to_arrays();
+    let overlay = bridge.sim_draw_trajectory(image.clone(), masks, arrays.position, arrays.gripper)?;
+    let outputs = [
+        ("image.png", image),
+        ("overlay.png", overlay),
+        ("trajectory.json", trajectory.to_json_string().into_bytes()),
+        ("response.json", answer_text.into_bytes()),
+    ];
+    for (name, contents) in &outputs {
+        write_atomically(&args.out.join(name), contents)?;
+    }
+    let stopped_cleanly = server.stop(Duration::from_secs(30));
+
+    let t = &answer.timings_ms;
+    let mut report = vec![
+        format!("scene      {} seed {} (held-out), prompt {prompt:?}", args.task, args.seed),
+        format!("model      {} ({} objects found by the {} segmenter)", answer.model.name, answer.objects.iter().filter(|o| o.found).count(), answer.segmenter),
+    ];
+    for object in &answer.objects {
+        let fit = object.confidence.as_ref().and_then(|c| c.psnr_db).map(|p| format!(", fit {p:.1} dB")).unwrap_or_default();
+        let slot = object.slot.map(|s| format!("slot {s}")).unwrap_or_else(|| "unused".into());
+        let box_text = object.bbox.map(|b| format!("box {b:?}")).unwrap_or_else(|| "not found".into());
+        report.push(format!("  {:<12} {:<14} score {:.2}, {box_text}, {slot}{fit}", object.role, object.phrase, object.score));
+    }
+    report.push(format!(
+        "timings    queue {:.1} ms, segment {:.1} ms, infer {:.1} ms, server total {:.1} ms, client round trip {:.1} ms",
+        t.queue_ms, t.segment_ms, t.infer_ms, t.total_ms, round_trip_s * 1e3
+    ));
+    report.push(format!("trajectory {} frames at {} Hz ({:.1} s)", trajectory.frames.len(), trajectory.fps, trajectory.duration()));
+    report.push(format!(
+        "simulator  {}",
+        if success { "SUCCESS: the task was completed".to_owned() } else { format!("FAILED: {}", reasons.join("; ")) }
+    ));
+    report.push(format!("server     stopped by SIGTERM, {}", if stopped_cleanly { "exit 0" } else { "did NOT exit cleanly" }));
+    report.push(format!(
+        "wrote      {}",
+        outputs.iter().map(|(name, _)| args.out.join(name).display().to_string()).collect::<Vec<_>>().join(", ")
+    ));
+    print_stdout(&report.join("\n"))?;
+    if !stopped_cleanly {
+        return Err(Failure::Environment("the server did not shut down cleanly on SIGTERM".into()));
+    }
+    Ok(())
+}

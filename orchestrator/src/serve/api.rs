@@ -1,0 +1,196 @@
+//! The HTTP API's request and response documents. They are the contract with clients: the
+//! OpenAPI description (`GET /openapi.json`) is generated from these types, and they are
+//! built from the bridge's types rather than exposing them, so the wire format stays stable
+//! when the Python side changes.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+/// `POST /v1/trajectories` as JSON.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct TrajectoryJsonRequest {
+    /// The scene image (PNG, JPEG, BMP, ...), base64-encoded (standard alphabet, padding optional).
+    pub image_base64: String,
+    /// What to do, naming the objects, e.g. "put the green cube on the paper".
+    pub prompt: String,
+    /// Use the served model trained on this task (see `GET /v1/models`).
+    #[serde(default)]
+    pub task: Option<String>,
+    /// Use this served model by name (overrides `task`).
+    #[serde(default)]
+    pub model: Option<String>,
+    /// Also return the coarse masks the segmenter found, as a label map PNG.
+    #[serde(default)]
+    pub include_masks: Option<bool>,
+}
+
+/// `POST /v1/trajectories` as `multipart/form-data` (the same fields; the image as a file).
+#[derive(Debug, Clone, ToSchema)]
+#[allow(dead_code)] // documents the form for the OpenAPI description; the form is parsed field by field
+pub struct TrajectoryForm {
+    /// The scene image file (PNG, JPEG, BMP, ...).
+    #[schema(value_type = String, format = Binary)]
+    pub image: Vec<u8>,
+    /// What to do, naming the objects.
+    pub prompt: String,
+    /// Use the served model trained on this task.
+    pub task: Option<String>,
+    /// Use this served model by name (overrides `task`).
+    pub model: Option<String>,
+    /// "true" to also return the coarse masks as a label map PNG.
+    pub include_masks: Option<bool>,
+}
+
+/// One time step of the trajectory (design.md's trajectory JSON).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct Frame {
+    /// Time since the start (s).
+    pub t: f64,
+    /// Tool centre point (m, world frame).
+    pub position: [f64; 3],
+    /// Unit quaternion [w, x, y, z].
+    pub orientation: [f64; 4],
+    /// Gripper opening in [0, 1], 1 = open.
+    pub gripper: f64,
+}
+
+/// The model that answered.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct ModelRef {
+    pub name: String,
+    pub task: String,
+    #[serde(rename = "type")]
+    pub model_type: String,
+}
+
+/// How well the model's scene field explains an object: the confidence signal of paper
+/// §II-C (lower reconstruction error = more confident).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct Confidence {
+    /// Reconstruction MSE of the object's masked region (RGB in [0, 1]).
+    pub reconstruction_mse: Option<f64>,
+    /// The same as PSNR (dB).
+    pub psnr_db: Option<f64>,
+    /// IoU of the model's learned mask with the segmenter's coarse mask.
+    pub mask_iou: Option<f64>,
+}
+
+/// One object phrase of the prompt: what the segmenter found and, for the phrases that fill
+/// the model's object slots, what the model inferred.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct DetectedObject {
+    /// The phrase as parsed from the prompt ("green cube").
+    pub phrase: String,
+    /// target | destination | obstacle | object | unknown.
+    pub role: String,
+    pub found: bool,
+    /// Mean mask probability in [0, 1] (the peak probability when nothing was found).
+    pub score: f64,
+    /// Mask area (px).
+    pub area: u64,
+    /// [x0, y0, x1, y1) (px).
+    pub bbox: Option<[u32; 4]>,
+    /// [x, y] (px).
+    pub centroid: Option<[f64; 2]>,
+    /// The model's object slot this phrase fills (1-based), if any.
+    pub slot: Option<u32>,
+    /// Inferred simplex weights over the slot's endpoint latents.
+    pub latent_weights: Option<Vec<f64>>,
+    pub confidence: Option<Confidence>,
+}
+
+/// Wall time of each stage (ms).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct StageTimings {
+    /// Waiting for the Python worker.
+    pub queue_ms: f64,
+    /// Prompt -> coarse masks (language segmenter).
+    pub segment_ms: f64,
+    /// Latent inference and trajectory decoding (NF-MP core).
+    pub infer_ms: f64,
+    /// Whole request, from the first byte read to the response.
+    pub total_ms: f64,
+}
+
+/// The answer to `POST /v1/trajectories`: the trajectory JSON of design.md (`fps`,
+/// `frames`) plus what was found and inferred.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct TrajectoryResponse {
+    /// Nominal sampling rate (Hz).
+    pub fps: f64,
+    pub frames: Vec<Frame>,
+    pub model: ModelRef,
+    pub prompt: String,
+    /// The segmenter backend that found the objects.
+    pub segmenter: String,
+    pub objects: Vec<DetectedObject>,
+    /// Whole-image reconstruction PSNR (dB) of the model's scene field.
+    pub scene_psnr_db: Option<f64>,
+    pub timings_ms: StageTimings,
+    /// With `include_masks`: an 8-bit label map PNG (label k = the model's k-th slot), base64.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub masks_png_base64: Option<String>,
+}
+
+/// One served model.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct ModelSummary {
+    /// Directory name under the models directory; what requests pass as `model`.
+    pub name: String,
+    pub task: String,
+    #[serde(rename = "type")]
+    pub model_type: String,
+    /// Object slot names of the training scenes, in slot order.
+    pub objects: Vec<String>,
+    /// The prompt role filling each slot; null when prompts cannot drive this task yet.
+    pub roles: Option<Vec<String>>,
+    /// Network parameters.
+    pub parameters: u64,
+    /// Rate (Hz) and length (s) of the trajectories it produces.
+    pub output_fps: f64,
+    pub duration_s: f64,
+    /// Used when a request names neither a model nor a task.
+    pub default: bool,
+    /// The model card's summary table (dataset, steps, wall time, ...).
+    pub card: BTreeMap<String, String>,
+}
+
+/// `GET /v1/models`.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct ModelList {
+    pub models: Vec<ModelSummary>,
+}
+
+/// `GET /v1/health`.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct Health {
+    /// Always "ok" when the server answers.
+    pub status: String,
+    pub version: String,
+    /// Models loaded and served.
+    pub models: usize,
+    /// The segmenter backend in use.
+    pub segmenter: String,
+    /// Requests waiting for the Python worker, and how many may wait.
+    pub queue_depth: usize,
+    pub queue_capacity: usize,
+    pub uptime_s: f64,
+}
+
+/// What went wrong.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct ErrorDetail {
+    /// A stable machine-readable code (`invalid_image`, `empty_prompt`, `overloaded`, ...).
+    pub code: String,
+    /// What is wrong and how to fix it.
+    pub message: String,
+}
+
+/// Every error answer: `{"error": {"code", "message"}}`.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct ErrorResponse {
+    pub error: ErrorDetail,
+}

@@ -1,0 +1,146 @@
+//! `cnfmp serve`: the HTTP API (axum) through which a robot stack asks for trajectories.
+//!
+//! Every served model and the segmenter are loaded before the server listens. Requests are
+//! parsed and checked on the async runtime; their Python work (segment, then predict) goes
+//! through one bounded queue to the bridge's single worker thread (see [`queue`]), so a
+//! burst is answered 503 at once instead of queueing without bound. SIGTERM or Ctrl-C stops
+//! accepting connections, lets in-flight requests finish, and exits 0.
+
+pub mod api;
+mod catalog;
+mod error;
+mod metrics;
+mod queue;
+mod routes;
+
+use std::io::Write;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use segmenter_bridge::Bridge;
+
+use crate::commands::segment::BackendArgs;
+use crate::failure::Failure;
+use catalog::Catalog;
+use routes::{AppState, Limits, SegmenterChoice};
+
+pub use routes::ApiDoc;
+
+/// The line `cnfmp serve` prints on stdout once it listens; the address follows it.
+pub const LISTENING: &str = "cnfmp serve: listening on http://";
+
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// Directory of model directories (each written by `cnfmp train`); every one is served,
+    /// by its directory name.
+    #[arg(long, default_value = "models")]
+    models: PathBuf,
+    /// Address to listen on. Port 0 picks a free port; the address is printed on stdout.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    addr: SocketAddr,
+    /// The model used when a request names neither a model nor a task.
+    #[arg(long, default_value = "language_pick_place")]
+    default_model: String,
+    #[command(flatten)]
+    segmenter: BackendArgs,
+    /// Requests that may wait for the Python worker while it runs one; the next gets 503.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    queue_capacity: u32,
+    /// Seconds a trajectory request may take, waiting included, before it gets 504.
+    #[arg(long, default_value_t = 30.0, value_parser = positive_seconds)]
+    request_timeout_s: f64,
+    /// Largest request body (bytes).
+    #[arg(long, default_value_t = 16 * 1024 * 1024)]
+    max_body_bytes: usize,
+    /// Largest image side (px); the segmenter reads at most 4096.
+    #[arg(long, default_value_t = 4096, value_parser = clap::value_parser!(u32).range(8..=4096))]
+    max_image_side: u32,
+    /// Longest prompt (characters); the segmenter reads at most 1000.
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    max_prompt_chars: u32,
+}
+
+fn positive_seconds(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(seconds) if seconds.is_finite() && seconds > 0.0 => Ok(seconds),
+        _ => Err(format!("{text:?} is not a positive number of seconds")),
+    }
+}
+
+pub fn run(args: ServeArgs) -> Result<(), Failure> {
+    if !args.models.is_dir() {
+        return Err(Failure::BadInput(format!("the models directory {} does not exist", args.models.display())));
+    }
+    let started = Instant::now();
+    let bridge = Bridge::start_default()?;
+    let catalog = Catalog::load(bridge, &args.models, &args.default_model)?;
+    let backend = bridge
+        .segmenter_preload(&args.segmenter.backend, args.segmenter.weights.clone())
+        .map_err(|err| Failure::from(err).with_context("cannot load the segmenter"))?;
+    eprintln!("cnfmp serve: segmenter {backend}; ready in {:.1} s", started.elapsed().as_secs_f64());
+    let queue = queue::PythonQueue::start(bridge, args.queue_capacity as usize)
+        .map_err(|err| Failure::Environment(format!("cannot start the dispatcher thread: {err}")))?;
+    let state = Arc::new(AppState {
+        catalog,
+        queue,
+        metrics: metrics::Metrics::default(),
+        limits: Limits {
+            max_body_bytes: args.max_body_bytes,
+            max_image_side: args.max_image_side,
+            max_prompt_chars: args.max_prompt_chars as usize,
+            request_timeout: Duration::from_secs_f64(args.request_timeout_s),
+        },
+        segmenter: SegmenterChoice { backend, weights: args.segmenter.weights.clone() },
+        started,
+    });
+    // Two async workers suffice: handlers only parse, check and wait; Python does the work.
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|err| Failure::Environment(format!("cannot start the async runtime: {err}")))?;
+    runtime.block_on(serve(args.addr, state))
+}
+
+async fn serve(addr: SocketAddr, state: Arc<AppState>) -> Result<(), Failure> {
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|err| Failure::BadInput(format!("cannot listen on {addr}: {err}")))?;
+    let bound = listener
+        .local_addr()
+        .map_err(|err| Failure::Environment(format!("cannot read the bound address: {err}")))?;
+    {
+        let mut stdout = std::io::stdout().lock();
+        let _ = writeln!(stdout, "{LISTENING}{bound}");
+        let _ = stdout.flush();
+    }
+    axum::serve(listener, routes::router(state))
+        .with_graceful_shutdown(shutdown_signal())
+        .await
+        .map_err(|err| Failure::Environment(format!("the server failed: {err}")))?;
+    eprintln!("cnfmp serve: stopped");
+    Ok(())
+}
+
+/// Resolves on SIGTERM or Ctrl-C (SIGINT).
+async fn shutdown_signal() {
+    let terminate = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut signal) => {
+                signal.recv().await;
+            }
+            Err(err) => {
+                eprintln!("cnfmp serve: cannot watch SIGTERM ({err}); stop with Ctrl-C");
+                std::future::pending::<()>().await;
+            }
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {},
+        () = terminate => {},
+    }
+    eprintln!("cnfmp serve: shutting down; finishing requests in flight");
+}

@@ -1,0 +1,559 @@
+//! The HTTP routes: typed handlers, the request parsing and checks that run before any
+//! Python work is queued, the prompt -> segmenter -> core pipeline, and the OpenAPI
+//! description generated from the handlers' annotations.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use axum::body::Bytes;
+use axum::extract::{DefaultBodyLimit, FromRequest, MatchedPath, Multipart, Request, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use base64::Engine;
+use base64::engine::{DecodePaddingMode, GeneralPurpose, GeneralPurposeConfig};
+use segmenter_bridge::{Bridge, Prediction, SegmentRequest, Segmentation};
+use utoipa::OpenApi;
+
+use super::api::*;
+use super::catalog::{Catalog, ServedModel};
+use super::error::{ApiError, ErrorCode};
+use super::metrics::{Metrics, QueueGauges};
+use super::queue::PythonQueue;
+use crate::trajectory::Trajectory;
+
+/// What the server accepts; requests beyond get a 4xx before any work is queued.
+#[derive(Debug, Clone)]
+pub struct Limits {
+    /// Largest request body (bytes).
+    pub max_body_bytes: usize,
+    /// Largest image side (px).
+    pub max_image_side: u32,
+    /// Longest prompt (characters).
+    pub max_prompt_chars: usize,
+    /// Longest a request may take, queueing included.
+    pub request_timeout: Duration,
+}
+
+/// Which segmenter backend the pipeline uses.
+#[derive(Debug, Clone)]
+pub struct SegmenterChoice {
+    pub backend: String,
+    pub weights: Option<std::path::PathBuf>,
+}
+
+/// The result of the Python part of one request.
+pub struct PipelineOutput {
+    segmentation: Segmentation,
+    prediction: Prediction,
+    segment_s: f64,
+    infer_s: f64,
+}
+
+pub type PipelineResult = Result<PipelineOutput, ApiError>;
+
+/// Everything the handlers share.
+pub struct AppState {
+    pub catalog: Catalog,
+    pub queue: PythonQueue<PipelineResult>,
+    pub metrics: Metrics,
+    pub limits: Limits,
+    pub segmenter: SegmenterChoice,
+    pub started: Instant,
+}
+
+type Shared = Arc<AppState>;
+
+/// The router with every route, the metrics/access-log middleware and JSON fallbacks.
+pub fn router(state: Shared) -> Router {
+    let body_limit = state.limits.max_body_bytes;
+    Router::new()
+        .route("/v1/trajectories", post(create_trajectory))
+        .route("/v1/health", get(health))
+        .route("/v1/models", get(list_models))
+        .route("/metrics", get(metrics))
+        .route("/openapi.json", get(openapi_json))
+        .fallback(unknown_route)
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(DefaultBodyLimit::max(body_limit))
+        .layer(middleware::from_fn_with_state(Arc::clone(&state), observe))
+        .with_state(state)
+}
+
+/// Counts every answer by route, status and error code, and logs one line per request.
+async fn observe(State(state): State<Shared>, request: Request, next: Next) -> Response {
+    let route = request
+        .extensions()
+        .get::<MatchedPath>()
+        .map(|path| path.as_str().to_owned())
+        .unwrap_or_else(|| "unmatched".to_owned());
+    let (method, path) = (request.method().clone(), request.uri().path().to_owned());
+    let started = Instant::now();
+    let response = next.run(request).await;
+    let seconds = started.elapsed().as_secs_f64();
+    let code = response.extensions().get::<ErrorCode>().map(|code| code.0);
+    state.metrics.record_request(&route, response.status().as_u16(), code, seconds);
+    eprintln!(
+        "{method} {path} {} {:.1} ms{}",
+        response.status().as_u16(),
+        seconds * 1e3,
+        code.map(|code| format!(" ({code})")).unwrap_or_default()
+    );
+    response
+}
+
+async fn unknown_route() -> ApiError {
+    ApiError::not_found("unknown_route", "no such route; see GET /openapi.json for the API")
+}
+
+async fn method_not_allowed() -> ApiError {
+    ApiError::new(StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed", "this route does not accept that method; see GET /openapi.json")
+}
+
+/// A trajectory request, whichever way it came.
+struct TrajectoryInput {
+    image: Vec<u8>,
+    prompt: String,
+    task: Option<String>,
+    model: Option<String>,
+    include_masks: bool,
+}
+
+/// Predict a trajectory from a scene image and a prompt.
+///
+/// The prompt names the objects; the language segmenter finds them in the image, the
+/// phrases fill the model's object slots by role (e.g. target, destination), and the NF-MP
+/// core infers one latent per object and decodes the motion.
+#[utoipa::path(
+    post,
+    path = "/v1/trajectories",
+    request_body(
+        description = "The scene image and the prompt, as a form or as JSON.",
+        content(
+            (TrajectoryForm = "multipart/form-data"),
+            (TrajectoryJsonRequest = "application/json"),
+        )
+    ),
+    responses(
+        (status = 200, description = "The trajectory, the objects found and inferred, and stage timings.", body = TrajectoryResponse),
+        (status = 400, description = "Malformed request: bad JSON or form, missing field, empty or overlong prompt, not an image.", body = ErrorResponse),
+        (status = 404, description = "Unknown model or task.", body = ErrorResponse),
+        (status = 413, description = "The body or the image is too large.", body = ErrorResponse),
+        (status = 415, description = "Neither multipart/form-data nor application/json.", body = ErrorResponse),
+        (status = 422, description = "The prompt cannot drive the model: a needed object is not named, or not found in the image.", body = ErrorResponse),
+        (status = 500, description = "Internal failure (logged by the server).", body = ErrorResponse),
+        (status = 503, description = "Too many requests are waiting; retry after the Retry-After header's seconds.", body = ErrorResponse,
+            headers(("Retry-After" = u64, description = "Seconds to wait before retrying."))),
+        (status = 504, description = "The request took longer than the server's timeout.", body = ErrorResponse),
+    )
+)]
+async fn create_trajectory(State(state): State<Shared>, request: Request) -> Result<Json<TrajectoryResponse>, ApiError> {
+    let started = Instant::now();
+    let timeout = state.limits.request_timeout;
+    match tokio::time::timeout(timeout, answer_trajectory(&state, request, started)).await {
+        Ok(answer) => answer.map(Json),
+        Err(_) => Err(ApiError::new(
+            StatusCode::GATEWAY_TIMEOUT,
+            "timeout",
+            format!("the request took longer than the server's limit of {:.0} s", timeout.as_secs_f64()),
+        )),
+    }
+}
+
+async fn answer_trajectory(state: &AppState, request: Request, started: Instant) -> Result<TrajectoryResponse, ApiError> {
+    let input = read_input(request).await?;
+    let prompt = check_prompt(&input.prompt, state.limits.max_prompt_chars)?;
+    check_image(&input.image, state.limits.max_image_side)?;
+    let served = state.catalog.select(input.model.as_deref(), input.task.as_deref())?;
+    if served.summary.roles.is_none() {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "not_promptable",
+            format!(
+                "prompts cannot drive {} models yet (no prompt roles for the task {}); use `cnfmp predict --masks` instead",
+                served.summary.name, served.summary.task
+            ),
+        ));
+    }
+    let job = pipeline_job(served, &state.segmenter, input.image, prompt.clone());
+    let receiver = state.queue.submit(job).map_err(|full| ApiError::overloaded(full.retry_after_s, full.capacity))?;
+    let done = receiver.await.map_err(|_| {
+        ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", "the Python worker stopped before answering")
+    })?;
+    let output = done.result?;
+    let waited = done.waited.as_secs_f64();
+    let total = started.elapsed().as_secs_f64();
+    for (stage, seconds) in [("queue", waited), ("segment", output.segment_s), ("infer", output.infer_s), ("total", total)] {
+        state.metrics.record_stage(stage, seconds);
+    }
+    let timings = StageTimings {
+        queue_ms: waited * 1e3,
+        segment_ms: output.segment_s * 1e3,
+        infer_ms: output.infer_s * 1e3,
+        total_ms: total * 1e3,
+    };
+    build_response(served, prompt, output, timings, input.include_masks)
+}
+
+/// The Python work of one request, run on the dispatcher thread: segment, then predict.
+fn pipeline_job(
+    served: &ServedModel,
+    segmenter: &SegmenterChoice,
+    image: Vec<u8>,
+    prompt: String,
+) -> impl FnOnce(&Bridge) -> PipelineResult + Send + 'static {
+    let (dir, task, segmenter) = (served.dir.clone(), served.summary.task.clone(), segmenter.clone());
+    move |bridge| {
+        let segment_started = Instant::now();
+        let segmentation = bridge.segment(SegmentRequest {
+            image: image.clone(),
+            prompt,
+            backend: segmenter.backend,
+            weights: segmenter.weights,
+            task: Some(task),
+            pictures: false,
+        })?;
+        let segment_s = segment_started.elapsed().as_secs_f64();
+        let infer_started = Instant::now();
+        let prediction =
+            bridge.core_predict(&dir, image, segmentation.labels_png.clone(), segmentation.slot_names.clone())?;
+        Ok(PipelineOutput { segmentation, prediction, segment_s, infer_s: infer_started.elapsed().as_secs_f64() })
+    }
+}
+
+/// `value` rounded to 6 decimals (µm, µs): the model's precision, and a compact answer.
+fn micro(value: f64) -> f64 {
+    (value * 1e6).round() / 1e6
+}
+
+/// A finite number, or None (JSON has no NaN).
+fn finite(value: Option<f64>) -> Option<f64> {
+    value.filter(|v| v.is_finite())
+}
+
+fn build_response(
+    served: &ServedModel,
+    prompt: String,
+    output: PipelineOutput,
+    timings_ms: StageTimings,
+    include_masks: bool,
+) -> Result<TrajectoryResponse, ApiError> {
+    let PipelineOutput { segmentation, prediction, .. } = output;
+    // The Rust trajectory checks (unit quaternions, increasing time, ...) guard the wire.
+    let trajectory = Trajectory::from_json_str(&prediction.json).map_err(|err| {
+        eprintln!("cnfmp serve: the model produced an invalid trajectory: {err}");
+        ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", format!("the model produced an invalid trajectory: {err}"))
+    })?;
+    let frames = trajectory
+        .frames
+        .iter()
+        .map(|frame| {
+            let (p, q) = (frame.pose.position, frame.pose.orientation);
+            Frame {
+                t: micro(frame.t),
+                position: [p.x, p.y, p.z].map(micro),
+                orientation: [q.w, q.i, q.j, q.k].map(micro),
+                gripper: micro(frame.gripper),
+            }
+        })
+        .collect();
+    let slots = segmentation.document.slots.clone().unwrap_or_default();
+    let objects = segmentation
+        .document
+        .objects
+        .iter()
+        .map(|found| {
+            let slot = slots.iter().find(|s| s.label == found.label).map(|s| s.slot);
+            let estimate = slot.and_then(|slot| prediction.objects.iter().find(|o| o.slot == slot));
+            DetectedObject {
+                phrase: found.phrase.clone(),
+                role: found.role.clone(),
+                found: found.found,
+                score: found.score,
+                area: found.area,
+                bbox: found.bbox,
+                centroid: found.centroid,
+                slot,
+                latent_weights: estimate.and_then(|e| e.weights.clone()),
+                confidence: estimate.filter(|e| e.present).map(|e| Confidence {
+                    reconstruction_mse: finite(e.reconstruction_mse),
+                    psnr_db: finite(e.psnr_db),
+                    mask_iou: finite(e.mask_iou),
+                }),
+            }
+        })
+        .collect();
+    Ok(TrajectoryResponse {
+        fps: trajectory.fps,
+        frames,
+        model: ModelRef {
+            name: served.summary.name.clone(),
+            task: served.summary.task.clone(),
+            model_type: served.summary.model_type.clone(),
+        },
+        prompt,
+        segmenter: segmentation.document.backend.clone(),
+        objects,
+        scene_psnr_db: finite(Some(prediction.scene_psnr_db)),
+        timings_ms,
+        masks_png_base64: include_masks.then(|| base64::engine::general_purpose::STANDARD.encode(&segmentation.labels_png)),
+    })
+}
+
+/// Base64 with or without padding (clients differ).
+const BASE64: GeneralPurpose = GeneralPurpose::new(
+    &base64::alphabet::STANDARD,
+    GeneralPurposeConfig::new().with_decode_padding_mode(DecodePaddingMode::Indifferent),
+);
+
+/// Parses the body as multipart/form-data or JSON, by its content type.
+async fn read_input(request: Request) -> Result<TrajectoryInput, ApiError> {
+    let content_type = content_type(request.headers());
+    match content_type.as_str() {
+        "multipart/form-data" => read_form(request).await,
+        "application/json" => read_json(request).await,
+        other => Err(ApiError::new(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "unsupported_media_type",
+            format!(
+                "send multipart/form-data (an `image` file and a `prompt` field) or application/json \
+                 ({{\"image_base64\", \"prompt\"}}), not {}",
+                if other.is_empty() { "a body without a Content-Type" } else { other }
+            ),
+        )),
+    }
+}
+
+/// The media type of `Content-Type`, lowercase, without parameters ("" when absent).
+fn content_type(headers: &HeaderMap) -> String {
+    headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|value| value.to_str().ok())
+        .and_then(|value| value.split(';').next())
+        .map(|value| value.trim().to_ascii_lowercase())
+        .unwrap_or_default()
+}
+
+async fn read_json(request: Request) -> Result<TrajectoryInput, ApiError> {
+    let body = Bytes::from_request(request, &()).await.map_err(|rejection| {
+        if rejection.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            ApiError::too_large("body_too_large", rejection.body_text())
+        } else {
+            ApiError::bad_request("unreadable_body", rejection.body_text())
+        }
+    })?;
+    let deserializer = &mut serde_json::Deserializer::from_slice(&body);
+    let request: TrajectoryJsonRequest = serde_path_to_error::deserialize(deserializer).map_err(|err| {
+        let inner = err.inner();
+        let (code, what) = match inner.classify() {
+            serde_json::error::Category::Data if inner.to_string().starts_with("missing field") => ("missing_field", "a field is missing"),
+            serde_json::error::Category::Data if inner.to_string().starts_with("unknown field") => ("unknown_field", "unknown field"),
+            serde_json::error::Category::Data => ("invalid_field", "a field has the wrong type"),
+            _ => ("malformed_json", "the body is not valid JSON"),
+        };
+        let path = err.path().to_string();
+        let location = if path == "." { String::new() } else { format!(" at {path}") };
+        ApiError::bad_request(code, format!("{what}{location}: {inner}"))
+    })?;
+    let image = BASE64.decode(request.image_base64.trim()).map_err(|err| {
+        ApiError::bad_request("invalid_base64", format!("image_base64 is not base64: {err}"))
+    })?;
+    Ok(TrajectoryInput {
+        image,
+        prompt: request.prompt,
+        task: request.task,
+        model: request.model,
+        include_masks: request.include_masks.unwrap_or(false),
+    })
+}
+
+const FORM_FIELDS: &str = "image (file), prompt, and optionally task, model, include_masks";
+
+async fn read_form(request: Request) -> Result<TrajectoryInput, ApiError> {
+    let mut form = Multipart::from_request(request, &())
+        .await
+        .map_err(|rejection| ApiError::bad_request("malformed_form", rejection.body_text()))?;
+    let (mut image, mut prompt, mut task, mut model, mut include_masks) = (None, None, None, None, None);
+    loop {
+        let field = match form.next_field().await {
+            Ok(Some(field)) => field,
+            Ok(None) => break,
+            Err(err) => return Err(form_error(err)),
+        };
+        let name = field.name().unwrap_or_default().to_owned();
+        let slot: &mut Option<Vec<u8>> = match name.as_str() {
+            "image" => &mut image,
+            "prompt" => &mut prompt,
+            "task" => &mut task,
+            "model" => &mut model,
+            "include_masks" => &mut include_masks,
+            _ => {
+                return Err(ApiError::bad_request(
+                    "unknown_field",
+                    format!("unknown form field {name:?}; the form takes {FORM_FIELDS}"),
+                ));
+            }
+        };
+        if slot.is_some() {
+            return Err(ApiError::bad_request("duplicate_field", format!("the form field {name:?} appears twice")));
+        }
+        *slot = Some(field.bytes().await.map_err(form_error)?.to_vec());
+    }
+    let text = |name: &str, value: Option<Vec<u8>>| -> Result<Option<String>, ApiError> {
+        value
+            .map(|bytes| {
+                String::from_utf8(bytes)
+                    .map_err(|_| ApiError::bad_request("invalid_field", format!("the form field {name:?} is not UTF-8 text")))
+            })
+            .transpose()
+    };
+    let missing = |name: &str| ApiError::bad_request("missing_field", format!("the form has no {name:?} field; it takes {FORM_FIELDS}"));
+    let include_masks = match text("include_masks", include_masks)?.as_deref().map(str::trim) {
+        None | Some("false" | "0" | "") => false,
+        Some("true" | "1") => true,
+        Some(other) => {
+            return Err(ApiError::bad_request("invalid_field", format!("include_masks must be true or false, not {other:?}")));
+        }
+    };
+    Ok(TrajectoryInput {
+        image: image.ok_or_else(|| missing("image"))?,
+        prompt: text("prompt", prompt)?.ok_or_else(|| missing("prompt"))?,
+        task: text("task", task)?,
+        model: text("model", model)?,
+        include_masks,
+    })
+}
+
+fn form_error(err: axum::extract::multipart::MultipartError) -> ApiError {
+    if err.status() == StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::too_large("body_too_large", err.body_text())
+    } else {
+        ApiError::bad_request("malformed_form", err.body_text())
+    }
+}
+
+/// The prompt, trimmed; 400 when empty or longer than `max_chars`.
+fn check_prompt(prompt: &str, max_chars: usize) -> Result<String, ApiError> {
+    let prompt = prompt.trim();
+    if prompt.is_empty() {
+        return Err(ApiError::bad_request("empty_prompt", "the prompt is empty; name the objects, e.g. \"put the red cube on the paper\""));
+    }
+    let chars = prompt.chars().count();
+    if chars > max_chars {
+        return Err(ApiError::bad_request(
+            "prompt_too_long",
+            format!("the prompt has {chars} characters; at most {max_chars} are accepted"),
+        ));
+    }
+    Ok(prompt.to_owned())
+}
+
+/// Reads the image's size from its header (no decoding) and refuses what is not an image,
+/// has no pixels, or is too large, before any Python work is queued. A file that passes but
+/// is corrupt further in is caught when Python decodes it (400 `invalid_input`).
+fn check_image(image: &[u8], max_side: u32) -> Result<(), ApiError> {
+    if image.is_empty() {
+        return Err(ApiError::bad_request("invalid_image", "the image is empty"));
+    }
+    let size = imagesize::blob_size(image).map_err(|_| {
+        ApiError::bad_request("invalid_image", "the image is not in a format we read (PNG, JPEG, BMP, ...) or its header is corrupt")
+    })?;
+    if size.width == 0 || size.height == 0 {
+        return Err(ApiError::bad_request("invalid_image", format!("the image is {}x{}; it has no pixels", size.width, size.height)));
+    }
+    if size.width.max(size.height) > max_side as usize {
+        return Err(ApiError::too_large(
+            "image_too_large",
+            format!("the image is {}x{}; each side must be at most {max_side} px", size.width, size.height),
+        ));
+    }
+    Ok(())
+}
+
+/// Liveness and load: models served, the segmenter in use, the queue.
+#[utoipa::path(get, path = "/v1/health", responses((status = 200, description = "The server is up.", body = Health)))]
+async fn health(State(state): State<Shared>) -> Json<Health> {
+    Json(Health {
+        status: "ok".into(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        models: state.catalog.models().count(),
+        segmenter: state.segmenter.backend.clone(),
+        queue_depth: state.queue.depth(),
+        queue_capacity: state.queue.capacity(),
+        uptime_s: state.started.elapsed().as_secs_f64(),
+    })
+}
+
+/// The served models: name, task, object slots, prompt roles, card summary.
+#[utoipa::path(get, path = "/v1/models", responses((status = 200, description = "Every served model.", body = ModelList)))]
+async fn list_models(State(state): State<Shared>) -> Json<ModelList> {
+    Json(ModelList { models: state.catalog.models().map(|m| m.summary.clone()).collect() })
+}
+
+/// Prometheus metrics (text exposition format 0.0.4).
+#[utoipa::path(get, path = "/metrics", responses((status = 200, description = "Counters, histograms and gauges.", body = String, content_type = "text/plain")))]
+async fn metrics(State(state): State<Shared>) -> impl IntoResponse {
+    let gauges = QueueGauges { depth: state.queue.depth(), capacity: state.queue.capacity(), pending: state.queue.pending() };
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")], state.metrics.render(gauges))
+}
+
+/// This description.
+#[utoipa::path(get, path = "/openapi.json", responses((status = 200, description = "The OpenAPI document.", content_type = "application/json", body = Object)))]
+async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
+    Json(ApiDoc::openapi())
+}
+
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "cnfmp",
+        description = "Compositional Neural Field Movement Primitives: a scene image and a prompt in, a robot trajectory out."
+    ),
+    paths(create_trajectory, health, list_models, metrics, openapi_json),
+    components(schemas(
+        TrajectoryJsonRequest, TrajectoryForm, TrajectoryResponse, Frame, ModelRef, DetectedObject, Confidence,
+        StageTimings, ModelList, ModelSummary, Health, ErrorResponse, ErrorDetail
+    ))
+)]
+pub struct ApiDoc;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn prompts_are_trimmed_and_bounded() {
+        assert_eq!(check_prompt("  put the red cube on the paper ", 100).unwrap(), "put the red cube on the paper");
+        assert_eq!(check_prompt(" \n\t", 100).unwrap_err().code, "empty_prompt");
+        assert_eq!(check_prompt(&"a".repeat(101), 100).unwrap_err().code, "prompt_too_long");
+    }
+
+    #[test]
+    fn images_are_checked_from_their_header() {
+        let mut png = Vec::new();
+        {
+            let mut encoder = png::Encoder::new(&mut png, 3, 2);
+            encoder.set_color(png::ColorType::Rgb);
+            encoder.write_header().unwrap().write_image_data(&[0; 18]).unwrap();
+        }
+        assert!(check_image(&png, 8).is_ok());
+        assert_eq!(check_image(&png, 2).unwrap_err().status, StatusCode::PAYLOAD_TOO_LARGE);
+        assert_eq!(check_image(b"hello", 8).unwrap_err().code, "invalid_image");
+        assert_eq!(check_image(b"", 8).unwrap_err().code, "invalid_image");
+    }
+
+    #[test]
+    fn the_openapi_document_names_every_route_and_error_schema() {
+        let doc = serde_json::to_value(ApiDoc::openapi()).unwrap();
+        for path in ["/v1/trajectories", "/v1/health", "/v1/models", "/metrics", "/openapi.json"] {
+            assert!(doc["paths"].get(path).is_some(), "{path} missing from the OpenAPI document");
+        }
+        let responses = &doc["paths"]["/v1/trajectories"]["post"]["responses"];
+        for status in ["200", "400", "404", "413", "415", "422", "503", "504"] {
+            assert!(responses.get(status).is_some(), "status {status} undocumented");
+        }
+        assert!(doc["components"]["schemas"].get("ErrorResponse").is_some());
+    }
+}
