@@ -13,14 +13,18 @@ use utoipa::ToSchema;
 #[serde(deny_unknown_fields)]
 pub struct TrajectoryJsonRequest {
     /// The scene image (PNG, JPEG, BMP, ...), base64-encoded (standard alphabet, padding optional).
+    #[schema(min_length = 1)]
     pub image_base64: String,
     /// What to do, naming the objects, e.g. "put the green cube on the paper".
+    #[schema(min_length = 1, max_length = 1000, example = "put the green cube on the paper")]
     pub prompt: String,
     /// Use the served model trained on this task (see `GET /v1/models`).
     #[serde(default)]
+    #[schema(example = "language_pick_place")]
     pub task: Option<String>,
     /// Use this served model by name (overrides `task`).
     #[serde(default)]
+    #[schema(example = "language_pick_place")]
     pub model: Option<String>,
     /// Also return the coarse masks the segmenter found, as a label map PNG.
     #[serde(default)]
@@ -35,10 +39,13 @@ pub struct TrajectoryForm {
     #[schema(value_type = String, format = Binary)]
     pub image: Vec<u8>,
     /// What to do, naming the objects.
+    #[schema(min_length = 1, max_length = 1000, example = "put the green cube on the paper")]
     pub prompt: String,
     /// Use the served model trained on this task.
+    #[schema(example = "language_pick_place")]
     pub task: Option<String>,
     /// Use this served model by name (overrides `task`).
+    #[schema(example = "language_pick_place")]
     pub model: Option<String>,
     /// "true" to also return the coarse masks as a label map PNG.
     pub include_masks: Option<bool>,
