@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Installs the Debian packages the project needs, only when one is missing (idempotent, and
 # fast when nothing is to do): EGL/Mesa for MuJoCo's offscreen rendering (MUJOCO_GL=egl,
-# software llvmpipe, no GPU needed) and OSMesa as the fallback backend.
+# software llvmpipe, no GPU needed), OSMesa as the fallback backend, and wrk for the HTTP
+# load benchmark (scripts/bench-serve.sh).
 set -euo pipefail
 
-packages=(libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libgles2 libosmesa6)
+packages=(libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libgles2 libosmesa6 wrk)
 
 missing=()
 for package in "${packages[@]}"; do

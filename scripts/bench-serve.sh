@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# Load benchmark of the HTTP API on loopback: `cnfmp serve` with the shipped models and the
+# default segmenter, wrk POSTing one held-out language_pick_place scene (seed 1000003, as
+# JSON with the image in base64) at 1, 4 and 16 concurrent connections for a fixed duration
+# each. Prints requests/s, p50 and p99 per level, and the answers by status: 200 served,
+# 503 refused because the queue was full (deliberate; the client then waits Retry-After),
+# anything else an error.
+# Environment: BENCH_SECONDS (default 30), BENCH_LEVELS (default "1 4 16").
+set -euo pipefail
+source "$(dirname "$0")/common.sh"
+cd "$repo"
+command -v wrk >/dev/null || die "wrk is missing; run make setup (scripts/setup-system.sh installs it)"
+work=$(mktemp -d)
+server_pid=
+cleanup() {
+    [[ -n $server_pid ]] && kill -TERM "$server_pid" 2>/dev/null && wait "$server_pid" 2>/dev/null
+    rm -rf "$work"
+}
+trap cleanup EXIT
+
+target/release/cnfmp sim render --task language_pick_place --seed 1000003 --out "$work/scene" >/dev/null 2>&1
+.venv/bin/python - "$work" <<'PY'
+import base64, json, sys
+work = sys.argv[1]
+scene = json.load(open(f"{work}/scene/objects.json"))
+image = base64.b64encode(open(f"{work}/scene/image.png", "rb").read()).decode()
+json.dump({"image_base64": image, "prompt": scene["prompt"]}, open(f"{work}/body.json", "w"))
+PY
+
+target/release/cnfmp serve --addr 127.0.0.1:0 >"$work/server.out" 2>"$work/server.log" &
+server_pid=$!
+for _ in $(seq 600); do
+    grep -q "listening on" "$work/server.out" 2>/dev/null && break
+    kill -0 "$server_pid" 2>/dev/null || { cat "$work/server.log" >&2; die "the server exited"; }
+    sleep 0.5
+done
+url=$(sed -n 's/^cnfmp serve: listening on //p' "$work/server.out")/v1/trajectories
+[[ -n $url ]] || die "the server did not start listening"
+say "server at $url ($(grep -c '^cnfmp serve: loaded' "$work/server.log") models); $(nproc) cores; $(date -u +%F)"
+
+export BENCH_BODY="$work/body.json"
+seconds=${BENCH_SECONDS:-30}
+# One warm-up request so the first level does not measure first-call costs.
+curl -sf -o /dev/null -H 'Content-Type: application/json' --data-binary "@$BENCH_BODY" "$url"
+for connections in ${BENCH_LEVELS:-1 4 16}; do
+    threads=$(( connections < 2 ? connections : 2 ))
+    result=$(wrk -t"$threads" -c"$connections" -d"${seconds}s" --timeout 60s -s scripts/bench-serve.lua "$url" | grep '^RESULT')
+    echo "concurrency $connections, ${seconds} s: ${result#RESULT }"
+done
