@@ -41,6 +41,7 @@ bench: setup  ## benchmarks that print figures (see docs/benchmarks.md)
 	bash scripts/bench-sim.sh
 	bash scripts/bench-core.sh
 	bash scripts/bench-segmenter.sh
+	bash scripts/bench-serve.sh
 	bash scripts/bench-convert.sh
 	bash scripts/bench-setup.sh
 

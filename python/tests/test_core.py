@@ -153,6 +153,17 @@ def test_predict_api_returns_the_trajectory_schema_and_confidences(trained, tmp_
     assert result["model"]["task"] == "wall_avoidance"
 
 
+def test_describe_loads_the_model_and_names_its_slots_and_prompt_roles(trained, tmp_path):
+    model, _ = trained
+    save_model(model, str(tmp_path))
+    described = json.loads(api.describe(str(tmp_path)))
+    assert described["task"] == "wall_avoidance" and described["type"] == model.config.model_type
+    assert described["objects"] == list(model.config.object_names)
+    assert described["roles"] == ["obstacle", "destination"]
+    assert described["parameters"] == model.parameter_count()
+    assert api.predictor(str(tmp_path)) is api.predictor(str(tmp_path))  # resident after describe
+
+
 def test_bad_inputs_are_clear_errors(trained, tmp_path, demos):
     model, _ = trained
     image, masks = png(demos.images[0]), png(demos.masks[0])

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from cnfmp.errors import InputError
+from cnfmp.errors import InputError, NotGrounded
 from cnfmp.images import encode_png
 from cnfmp.segmenter import api, order_by_roles, phrases, segment
 from cnfmp.segmenter.base import load_backend
@@ -135,12 +135,29 @@ def test_labels_are_ordered_by_the_model_roles():
     document = json.loads(out["json"])
     assert out["slot_names"] == ["red block", "blue plate"]
     assert [s["role"] for s in document["slots"]] == ["target", "destination"]
-    with pytest.raises(InputError, match="needs a destination"):
+    # A prompt that cannot fill the model's slots is NotGrounded (the HTTP API's 422), a kind
+    # of InputError (exit code 2 on the command line).
+    with pytest.raises(NotGrounded, match="needs a destination"):
         order_by_roles(segment(image, "the red block", ColorBackend()), "language_pick_place")
-    with pytest.raises(InputError, match="not found"):
+    with pytest.raises(NotGrounded, match="not found"):
         order_by_roles(segment(image, "put the green ball on the blue plate", ColorBackend()), "language_pick_place")
-    with pytest.raises(InputError, match="pass coarse masks"):
+    with pytest.raises(NotGrounded, match="pass coarse masks"):
         order_by_roles(result, "cube_stacking")
+    assert issubclass(NotGrounded, InputError)
+
+
+def test_segment_without_pictures_skips_the_masks_and_overlay():
+    image = encode_png(scene_image())
+    with_pictures = api.segment(image, "put the red block on the blue plate", "color", task="language_pick_place")
+    without = api.segment(image, "put the red block on the blue plate", "color", task="language_pick_place", pictures=False)
+    assert without["labels_png"] == with_pictures["labels_png"] and without["slot_names"] == with_pictures["slot_names"]
+    assert without["mask_pngs"] == [] and without["overlay_png"] == b""
+    assert len(with_pictures["mask_pngs"]) == 2 and with_pictures["overlay_png"].startswith(b"\x89PNG")
+
+
+def test_preload_resolves_auto_to_the_shipped_film_backend():
+    assert api.preload("auto") == "film"
+    assert api.preload("color") == "color"
 
 
 def test_film_training_smoke(tmp_path):

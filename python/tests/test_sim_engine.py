@@ -1,6 +1,7 @@
 """The simulator core: scene image and masks, workspace checks, the entry points the bridge
 calls, and determinism."""
 
+import io
 import json
 import os
 
@@ -9,8 +10,9 @@ import pytest
 from PIL import Image
 
 from cnfmp.errors import InputError
+from cnfmp.images import encode_png as encode_labels
 from cnfmp.sim import api, engine
-from cnfmp.sim.scene import CONTROL_HZ, WORKSPACE
+from cnfmp.sim.scene import CONTROL_HZ, WORKSPACE, project_to_image
 from cnfmp.sim.task import HELDOUT_SEEDS, TRAIN_SEEDS, get_task
 from cnfmp.sim.tasks import cube_stacking
 
@@ -101,3 +103,40 @@ def test_every_task_is_registered_and_described():
     assert {"cube_stacking"} <= {t["name"] for t in names}
     assert all(t["description"] for t in names)
     assert get_task("cube_stacking").name == "cube_stacking"
+
+
+def test_projection_puts_each_object_on_its_own_label():
+    import mujoco
+
+    from cnfmp.sim.tasks import language_pick_place
+
+    scene = language_pick_place.make_scene(1_000_003)
+    sim = engine.Simulation(scene)
+    try:
+        labels = sim.render_labels()
+        for label, bodies in enumerate(scene.object_bodies, start=1):
+            body = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, bodies[0])
+            column, row = project_to_image(sim.data.xpos[body][None])[0]
+            assert labels[int(row), int(column)] == label, (scene.objects[label - 1], column, row)
+    finally:
+        sim.close()
+    assert np.isnan(project_to_image(np.array([[0.0, -1.0, 0.5]]))).all()  # behind the camera
+
+
+def test_draw_trajectory_draws_the_path_on_the_scene(tmp_path):
+    api.render("language_pick_place", 1_000_003, str(tmp_path / "scene"))
+    image = (tmp_path / "scene" / "image.png").read_bytes()
+    masks = (tmp_path / "scene" / "masks.png").read_bytes()
+    expert = api.expert("language_pick_place", 1_000_003)
+    drawn = np.asarray(Image.open(io.BytesIO(
+        api.draw_trajectory(image, masks, expert["position"], expert["gripper"]))))
+    plain = np.asarray(Image.open(io.BytesIO(api.draw_trajectory(image, None, [[0.0, -1.0, 0.5]], [1.0]))))
+    assert drawn.shape == plain.shape == (512, 512, 3)
+    # The grasp point (first gripper closing) is ringed in white where the path projects.
+    closing = int(np.flatnonzero(np.asarray(expert["gripper"]) < 0.5)[0])
+    column, row = (project_to_image(np.asarray(expert["position"])[closing][None])[0] * 4).round().astype(int)
+    ring = drawn[row - 12:row + 13, column - 12:column + 13]
+    assert (ring == 255).all(axis=-1).any(), "no white ring at the grasp point"
+    assert (np.abs(drawn.astype(int) - plain.astype(int)).sum(axis=-1) > 30).mean() > 0.02
+    with pytest.raises(InputError, match="label map"):
+        api.draw_trajectory(image, encode_labels(np.zeros((64, 64), np.uint8)), expert["position"], expert["gripper"])

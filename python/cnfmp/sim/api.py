@@ -143,8 +143,8 @@ def draw_trajectory(image_data: bytes, labels_data: bytes | None, position, grip
     position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
     gripper = np.asarray(gripper, dtype=np.float64).reshape(-1)
     pixels = project_to_image(position) * (big.shape[1] / IMAGE_SIZE)
-    points = np.round(pixels).astype(np.int64)
     visible = np.isfinite(pixels).all(axis=1)
+    points = np.round(np.where(visible[:, None], pixels, 0.0)).astype(np.int64)
     steps = max(len(points) - 1, 1)
     for k in range(len(points) - 1):
         if visible[k] and visible[k + 1]:
