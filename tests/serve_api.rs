@@ -75,6 +75,9 @@ impl Drop for Server {
     }
 }
 
+/// A bad request and what it must get: (what, (content type, body), status, error code).
+type BadRequest<'a> = (&'a str, (String, Vec<u8>), u16, &'a str);
+
 /// An answer: status, Retry-After header, body parsed as JSON (Null when it is not JSON).
 struct Answer {
     status: u16,
@@ -231,7 +234,7 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
     let huge = png(20_000, 20_000, png::BitDepth::One, &vec![0u8; 2_500 * 20_000]);
     let long_prompt = "put the red cube on the paper ".repeat(3_500); // ~100 KB
     let form = |image: &[u8], fields: &[(&str, &str)]| multipart_form(image, fields);
-    let cases: Vec<(&str, (String, Vec<u8>), u16, &str)> = vec![
+    let cases: Vec<BadRequest> = vec![
         ("not an image", form(b"this is not an image", &[("prompt", &prompt)]), 400, "invalid_image"),
         ("truncated PNG", form(truncated, &[("prompt", &prompt)]), 400, "invalid_input"),
         ("0x0 image", form(&zero_by_zero_png(), &[("prompt", &prompt)]), 400, "invalid_image"),

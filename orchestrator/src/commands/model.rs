@@ -227,7 +227,7 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
         (None, None, Some(prompt)) => {
             let task = model_task(&args.model)?;
             let bridge = Bridge::start_default()?;
-            let found = run_segmenter(&bridge, image.clone(), prompt, &args.segmenter, Some(&task), false)?;
+            let found = run_segmenter(bridge, image.clone(), prompt, &args.segmenter, Some(&task), false)?;
             eprintln!("segmented by {}:\n{}", found.document.backend, describe(&found));
             let prediction = bridge.core_predict(&args.model, image, found.labels_png.clone(), found.slot_names.clone())?;
             (prediction, Some(found))
@@ -355,7 +355,7 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
         let call = Instant::now();
         let (masks, objects, segmentation) = if args.from_prompt {
             // A prompt the segmenter cannot ground in the image is a failed episode.
-            match run_segmenter(&bridge, image.clone(), &scene.prompt, &args.segmenter, Some(&args.task), false) {
+            match run_segmenter(bridge, image.clone(), &scene.prompt, &args.segmenter, Some(&args.task), false) {
                 Ok(found) => (found.labels_png, found.slot_names, Some(found.document)),
                 Err(Failure::BadInput(message)) => {
                     let episode = Episode::unsegmented(seed, message, call.elapsed().as_secs_f64() * 1e3);

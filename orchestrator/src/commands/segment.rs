@@ -137,7 +137,7 @@ pub(crate) fn describe(segmentation: &Segmentation) -> String {
 pub fn segment(args: SegmentArgs) -> Result<(), Failure> {
     let image = read_image(&args.image)?;
     let bridge = Bridge::start_default()?;
-    let result = run_segmenter(&bridge, image, &args.prompt, &args.backend, None, true)?;
+    let result = run_segmenter(bridge, image, &args.prompt, &args.backend, None, true)?;
     let document = serde_json::to_string_pretty(&result.document).expect("segmentation serialises");
     let objects = serde_json::json!({"prompt": args.prompt, "objects": result.slot_names});
     let mut files = vec![

@@ -4,6 +4,7 @@
 //! `Retry-After`). A request whose client gave up (timeout, disconnect) before its turn is
 //! dropped unrun, so abandoned work never delays the living.
 
+use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
@@ -25,13 +26,14 @@ pub struct Done<T> {
     pub result: T,
 }
 
-/// The queue refused a job: `capacity` jobs already wait.
+/// Why the queue refused a job.
 #[derive(Debug, Clone, Copy)]
-pub struct Full {
-    pub capacity: usize,
-    /// A fair guess of when a slot frees up (s, at least 1): the jobs ahead times the
-    /// average job's duration.
-    pub retry_after_s: u64,
+pub enum Refused {
+    /// `capacity` jobs already wait. `retry_after_s` is a fair guess of when a slot frees up
+    /// (s, at least 1): the jobs ahead times the mean job's duration.
+    Full { capacity: usize, retry_after_s: u64 },
+    /// The dispatcher thread is gone (the process is shutting down).
+    Stopped,
 }
 
 /// Handle to the queue and its dispatcher thread (which ends when every handle is dropped).
@@ -61,11 +63,13 @@ impl<T: Send + 'static> PythonQueue<T> {
                 let waited = job.queued_at.elapsed();
                 if !job.reply.is_closed() {
                     let started = Instant::now();
-                    let result = (job.work)(bridge);
+                    // A panicking job drops its reply (its request gets a 500); the next runs.
+                    if let Ok(result) = catch_unwind(AssertUnwindSafe(|| (job.work)(bridge))) {
+                        let _ = job.reply.send(Done { waited, result });
+                    }
                     let micros = started.elapsed().as_micros() as u64;
                     worker_stats.busy_micros.fetch_add(micros, Ordering::Relaxed);
                     worker_stats.finished.fetch_add(1, Ordering::Relaxed);
-                    let _ = job.reply.send(Done { waited, result });
                 }
                 worker_stats.pending.fetch_sub(1, Ordering::Relaxed);
             }
@@ -75,17 +79,20 @@ impl<T: Send + 'static> PythonQueue<T> {
 
     /// Queues `work`, or refuses it at once when `capacity` jobs already wait. Dropping the
     /// receiver before the job's turn cancels it.
-    pub fn submit(&self, work: impl FnOnce(&Bridge) -> T + Send + 'static) -> Result<oneshot::Receiver<Done<T>>, Full> {
+    pub fn submit(&self, work: impl FnOnce(&Bridge) -> T + Send + 'static) -> Result<oneshot::Receiver<Done<T>>, Refused> {
         let (reply, receiver) = oneshot::channel();
         let job = Job { work: Box::new(work), reply, queued_at: Instant::now() };
         self.stats.pending.fetch_add(1, Ordering::Relaxed);
-        match self.jobs.try_send(job) {
-            Ok(()) => Ok(receiver),
-            Err(_) => {
-                self.stats.pending.fetch_sub(1, Ordering::Relaxed);
-                Err(Full { capacity: self.capacity, retry_after_s: self.retry_after_s() })
-            }
-        }
+        let refused = match self.jobs.try_send(job) {
+            Ok(()) => return Ok(receiver),
+            Err(mpsc::error::TrySendError::Full(_)) => Refused::Full { capacity: self.capacity, retry_after_s: 0 },
+            Err(mpsc::error::TrySendError::Closed(_)) => Refused::Stopped,
+        };
+        self.stats.pending.fetch_sub(1, Ordering::Relaxed);
+        Err(match refused {
+            Refused::Full { capacity, .. } => Refused::Full { capacity, retry_after_s: self.retry_after_s() },
+            stopped => stopped,
+        })
     }
 
     /// Jobs waiting for their turn (not counting the one running).
@@ -93,7 +100,7 @@ impl<T: Send + 'static> PythonQueue<T> {
         self.jobs.max_capacity() - self.jobs.capacity()
     }
 
-    /// True while a job runs or waits.
+    /// Jobs waiting or running.
     pub fn pending(&self) -> usize {
         self.stats.pending.load(Ordering::Relaxed)
     }

@@ -21,7 +21,7 @@ use super::api::*;
 use super::catalog::{Catalog, ServedModel};
 use super::error::{ApiError, ErrorCode};
 use super::metrics::{Metrics, QueueGauges};
-use super::queue::PythonQueue;
+use super::queue::{PythonQueue, Refused};
 use crate::trajectory::Trajectory;
 
 /// What the server accepts; requests beyond get a 4xx before any work is queued.
@@ -178,7 +178,10 @@ async fn answer_trajectory(state: &AppState, request: Request, started: Instant)
         ));
     }
     let job = pipeline_job(served, &state.segmenter, input.image, prompt.clone());
-    let receiver = state.queue.submit(job).map_err(|full| ApiError::overloaded(full.retry_after_s, full.capacity))?;
+    let receiver = state.queue.submit(job).map_err(|refused| match refused {
+        Refused::Full { capacity, retry_after_s } => ApiError::overloaded(retry_after_s, capacity),
+        Refused::Stopped => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "shutting_down", "the server is shutting down"),
+    })?;
     let done = receiver.await.map_err(|_| {
         ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", "the Python worker stopped before answering")
     })?;
