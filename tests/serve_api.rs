@@ -319,7 +319,9 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
 #[test]
 fn schemathesis_finds_no_server_error_or_schema_violation() {
     let server = Server::start(&[]);
+    let scratch = tempfile::tempdir().unwrap(); // schemathesis keeps a cache in its working directory
     let output = Command::new(repo().join(".venv/bin/python"))
+        .current_dir(scratch.path())
         .args(["-c", "from schemathesis.cli import schemathesis; schemathesis()", "run", &server.url("/openapi.json")])
         // Schema-valid data is not necessarily a scene with the named objects (a 1x1 PNG,
         // a prompt naming nothing): the API rightly answers 400/422, so the check that

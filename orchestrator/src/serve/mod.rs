@@ -27,8 +27,6 @@ use crate::failure::Failure;
 use catalog::Catalog;
 use routes::{AppState, Limits, SegmenterChoice};
 
-pub use routes::ApiDoc;
-
 /// The line `cnfmp serve` prints on stdout once it listens; the address follows it.
 pub const LISTENING: &str = "cnfmp serve: listening on http://";
 
