@@ -9,7 +9,9 @@ final reconstruction error of each object is its confidence signal.
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
@@ -17,6 +19,19 @@ import torch
 from cnfmp.core import data as core_data
 from cnfmp.core.modeling_cnfmp import CnfmpModel, decode_trajectory, output_times, pixel_coords
 from cnfmp.errors import InputError
+
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def _fitting_pool() -> ThreadPoolExecutor:
+    """Threads that fit a scene's objects in parallel, one per core the process may use
+    (``CNFMP_INFERENCE_THREADS`` overrides); created on first use."""
+    global _POOL
+    if _POOL is None:
+        workers = int(os.environ.get("CNFMP_INFERENCE_THREADS", 0)) or len(os.sched_getaffinity(0))
+        _POOL = ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="cnfmp-fit")
+    return _POOL
 
 
 def psnr_db(mse: float) -> float:
@@ -58,13 +73,22 @@ class Predictor:
         return (mse + self.config.centre_prior_weight * centre_err
                 + self.config.weight_prior_weight * self.model.weight_spread(weights), mse)
 
-    def _search(self, slot: int, pixels: np.ndarray, rgb: torch.Tensor, colour: torch.Tensor, centre: torch.Tensor,
-                rng: np.random.Generator) -> tuple[torch.Tensor, tuple]:
-        """The cheap search of slot `slot`: scores every candidate on a few of its mask's
-        pixels and returns the best `search_starts` logits (S, K) with the fitting inputs
-        (coords, colour, background rgb and logit, target, centre) of the refinement."""
+    def _draw(self, pixels: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """The random draws of one object's search: up to `inference_pixels` of its mask's
+        `pixels` (flat indices) in random order, and `search_candidates` random points of the
+        simplex (C, K)."""
         c = self.config
-        idx = torch.from_numpy(rng.permutation(pixels)[: c.inference_pixels])
+        return rng.permutation(pixels)[: c.inference_pixels], rng.dirichlet(np.ones(c.num_endpoints),
+                                                                             size=c.search_candidates)
+
+    def _search(self, slot: int, pixels: np.ndarray, random_points: np.ndarray, rgb: torch.Tensor,
+                colour: torch.Tensor, centre: torch.Tensor) -> tuple[torch.Tensor, tuple]:
+        """The cheap search of slot `slot` (with the draws of :meth:`_draw`): scores every
+        candidate on a few of its mask's pixels and returns the best `search_starts` logits
+        (S, K) with the fitting inputs (coords, colour, background rgb and logit, target,
+        centre) of the refinement."""
+        c = self.config
+        idx = torch.from_numpy(pixels)
         fitting = (self.coords[idx][None], colour[None], self.bg_rgb[:, idx], self.bg_logit[:, idx], rgb[idx][None],
                    centre)
         k, m = c.num_endpoints, c.simplex_margin
@@ -73,7 +97,7 @@ class Predictor:
         known = torch.cat([torch.softmax(self.model.demo_logits[:, slot], dim=-1), torch.eye(k)])
         candidates = torch.cat([
             torch.log((known + m / k) / (1.0 + m) + 1e-6),
-            torch.log(torch.from_numpy(rng.dirichlet(np.ones(k), size=c.search_candidates)).float() + 1e-4),
+            torch.log(torch.from_numpy(random_points).float() + 1e-4),
         ])
         # The pixels are a random subset already: their first few are a random sample too.
         few = slice(0, c.search_pixels)
@@ -98,20 +122,28 @@ class Predictor:
         slots = [slot for slot in range(c.num_objects) if inputs["present"][slot]]
         if not slots:
             return weights, mse
-        searched = {slot: self._search(slot, np.flatnonzero(inputs["dilated"][slot].reshape(-1)), rgb, colour[slot],
-                                       centres[slot], rng) for slot in slots}
-        starts = {slot: searched[slot][0].requires_grad_(True) for slot in slots}
-        optimiser = torch.optim.Adam(list(starts.values()), lr=c.refine_learning_rate)
-        for _ in range(c.refine_steps):
-            loss = sum(self._object_loss(slot, starts[slot], *searched[slot][1])[0].sum() for slot in slots)
-            optimiser.zero_grad(set_to_none=True)
-            loss.backward()
-            optimiser.step()
-        with torch.no_grad():
-            for slot in slots:
-                final, errors = self._object_loss(slot, starts[slot], *searched[slot][1])
+        # Random draws in slot order (reproducible whatever runs in parallel below).
+        draws = {slot: self._draw(np.flatnonzero(inputs["dilated"][slot].reshape(-1)), rng) for slot in slots}
+
+        def fit(slot: int) -> tuple[torch.Tensor, float]:
+            start, fitting = self._search(slot, *draws[slot], rgb, colour[slot], centres[slot])
+            start.requires_grad_(True)
+            optimiser = torch.optim.Adam([start], lr=c.refine_learning_rate)
+            for _ in range(c.refine_steps):
+                loss = self._object_loss(slot, start, *fitting)[0].sum()
+                optimiser.zero_grad(set_to_none=True)
+                loss.backward()
+                optimiser.step()
+            with torch.no_grad():
+                final, errors = self._object_loss(slot, start, *fitting)
                 best = int(torch.argmin(final))
-                weights[slot], mse[slot] = self.weights_of(starts[slot][best]), float(errors[best])
+                return self.weights_of(start[best]), float(errors[best])
+
+        # The objects' objectives share nothing (Adam is per parameter), so each object is
+        # fitted on its own thread: torch releases the GIL inside its kernels, and with one
+        # intra-op thread per kernel this is how inference uses a second core.
+        for slot, (slot_weights, slot_mse) in zip(slots, _fitting_pool().map(fit, slots)):
+            weights[slot], mse[slot] = slot_weights, slot_mse
         return weights, mse
 
     def predict(self, image: np.ndarray, labels: np.ndarray, seed: int = 0) -> dict:
