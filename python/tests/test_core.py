@@ -153,6 +153,23 @@ def test_predict_api_returns_the_trajectory_schema_and_confidences(trained, tmp_
     assert result["model"]["task"] == "wall_avoidance"
 
 
+def test_fitting_objects_in_parallel_gives_the_sequential_result(trained, demos, monkeypatch):
+    from concurrent.futures import ThreadPoolExecutor
+
+    from cnfmp.core import inference
+
+    model, _ = trained
+    predictor = Predictor(model)
+    results = []
+    for workers in (1, 2):
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            monkeypatch.setattr(inference, "_POOL", pool)
+            results.append(predictor.predict(demos.images[2], demos.masks[2], seed=3))
+    assert np.array_equal(results[0]["weights"], results[1]["weights"])
+    assert results[0]["object_mse"] == results[1]["object_mse"]
+    assert np.array_equal(results[0]["trajectory"]["position"], results[1]["trajectory"]["position"])
+
+
 def test_describe_loads_the_model_and_names_its_slots_and_prompt_roles(trained, tmp_path):
     model, _ = trained
     save_model(model, str(tmp_path))
