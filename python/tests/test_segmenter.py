@@ -155,8 +155,10 @@ def test_segment_without_pictures_skips_the_masks_and_overlay():
     assert len(with_pictures["mask_pngs"]) == 2 and with_pictures["overlay_png"].startswith(b"\x89PNG")
 
 
-def test_preload_resolves_auto_to_the_shipped_film_backend():
+def test_preload_resolves_auto_to_the_shipped_film_backend_and_warms_it():
     assert api.preload("auto") == "film"
+    assert api.backend("film") is api.backend("auto"), "auto and its resolved name must share one instance"
+    assert "blue cup" in api.backend("film").encoder.cache  # every canonical phrase is embedded
     assert api.preload("color") == "color"
 
 

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from cnfmp.images import decode_image, encode_png
-from cnfmp.segmenter import Segmentation, order_by_roles, segment as segment_array
+from cnfmp.segmenter import Segmentation, order_by_roles, phrases, segment as segment_array
 from cnfmp.segmenter.base import Backend, load_backend
 
 _BACKENDS: dict[tuple[str, str | None], Backend] = {}
@@ -27,15 +27,21 @@ def backend(name: str = "auto", weights: str | None = None) -> Backend:
     """The resident backend `name` (weights from `weights` or its default location)."""
     key = (name, None if weights is None else os.path.abspath(os.fspath(weights)))
     if key not in _BACKENDS:
-        _BACKENDS[key] = load_backend(name, weights)
+        loaded = _BACKENDS[key] = load_backend(name, weights)
+        # What `auto` resolved to is the same backend when asked for by name (a server asks
+        # by the resolved name): one instance, one warm cache.
+        _BACKENDS.setdefault((loaded.name, key[1]), loaded)
     return _BACKENDS[key]
 
 
 def preload(name: str = "auto", weights: str | None = None) -> str:
-    """Loads backend `name` and runs it once on a blank image, so a server's first request
-    pays neither for loading nor for first-call warm-up. Returns the backend's name."""
+    """Loads backend `name`, warms it for every canonical phrase of the vocabulary and runs
+    it once on a blank image, so a server's first request pays neither for loading nor for
+    first-call costs. Returns the backend's name."""
     loaded = backend(name, weights)
-    segment_array(np.full((128, 128, 3), 128, dtype=np.uint8), "put the red cube on the paper", loaded)
+    loaded.warm(phrases.canonical_texts())
+    blank = encode_png(np.full((128, 128, 3), 128, dtype=np.uint8))
+    segment(blank, "put the red cube on the paper", name, weights, pictures=False)  # the request path, once
     return loaded.name
 
 

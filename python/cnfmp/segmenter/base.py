@@ -50,6 +50,10 @@ class Backend(abc.ABC):
         """Name and weights, for reports."""
         return {"backend": self.name}
 
+    def warm(self, phrases: list[str]) -> None:
+        """Prepares for `phrases` (e.g. caches their text embeddings) so the first request
+        naming them is as fast as later ones; nothing by default."""
+
 
 #: Smallest image side accepted (px): below it there is nothing to segment.
 MIN_IMAGE_SIDE = 8

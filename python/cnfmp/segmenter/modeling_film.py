@@ -162,6 +162,9 @@ class FilmBackend(Backend):
     def describe(self) -> dict:
         return {"backend": self.name, "weights": str(self.model_dir) if self.model_dir else None}
 
+    def warm(self, phrases: list[str]) -> None:
+        self.encoder(phrases)
+
     def to_input(self, image: np.ndarray) -> torch.Tensor:
         """(H, W, 3) uint8 -> (1, 3, S, S) float in [0, 1] at the network's input size."""
         x = torch.from_numpy(np.array(image, dtype=np.uint8)).permute(2, 0, 1)[None].float() / 255.0  # a copy: decoded images are read-only

@@ -152,8 +152,20 @@ def canonical(phrase: Phrase) -> str:
     as written, left to the backend's text encoder."""
     if phrase.category is None:
         return phrase.text
-    noun = vocabulary()["categories"][phrase.category]["train"][0]
-    return f"{phrase.colour} {noun}" if phrase.colour else noun
+    return canonical_text(phrase.category, phrase.colour)
+
+
+def canonical_text(category: str, colour: str | None) -> str:
+    """The canonical wording of (category, colour): "blue cup", or "cup" without a colour."""
+    noun = vocabulary()["categories"][category]["train"][0]
+    return f"{colour} {noun}" if colour else noun
+
+
+def canonical_texts() -> list[str]:
+    """Every canonical wording the vocabulary can produce: what a closed-vocabulary backend
+    is ever asked to ground (each category alone and in each colour)."""
+    vocab = vocabulary()
+    return [canonical_text(category, colour) for category in vocab["categories"] for colour in [None, *vocab["colours"]]]
 
 
 def phrasings(category: str, colour: str | None, split: str) -> list[str]:
