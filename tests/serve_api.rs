@@ -29,9 +29,14 @@ struct Server {
 }
 
 impl Server {
+    /// Serves the shipped models.
     fn start(extra: &[&str]) -> Server {
+        Server::start_with(&repo().join("models"), extra)
+    }
+
+    fn start_with(models: &Path, extra: &[&str]) -> Server {
         let mut child = Command::new(env!("CARGO_BIN_EXE_cnfmp"))
-            .args(["serve", "--addr", "127.0.0.1:0", "--models", arg(&repo().join("models"))])
+            .args(["serve", "--addr", "127.0.0.1:0", "--models", arg(models)])
             .args(extra)
             .stdout(Stdio::piped())
             .stdin(Stdio::null())
@@ -333,4 +338,23 @@ fn schemathesis_finds_no_server_error_or_schema_violation() {
     let report = String::from_utf8_lossy(&output.stdout);
     assert!(output.status.success(), "schemathesis found problems:\n{report}\n{}", common::stderr(&output));
     assert!(report.contains("passed"), "{report}");
+}
+
+#[test]
+fn a_request_over_the_time_limit_gets_504_and_the_server_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let (image, prompt) = render_scene(dir.path());
+    // One model is enough here and starts faster.
+    let models = dir.path().join("models");
+    std::fs::create_dir(&models).unwrap();
+    std::os::unix::fs::symlink(repo().join("models").join(TASK), models.join(TASK)).unwrap();
+    let mut server = Server::start_with(&models, &["--request-timeout-s", "0.05"]);
+    for _ in 0..2 {
+        let answer = post_form(&server, &image, &[("prompt", &prompt)]);
+        assert_eq!(answer.status, 504, "{}", answer.body);
+        assert_eq!(answer.body["error"]["code"], "timeout");
+    }
+    let (status, _) = get(&server.url("/v1/health"));
+    assert_eq!(status, 200);
+    assert!(server.terminate().success());
 }
