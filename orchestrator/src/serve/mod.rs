@@ -115,10 +115,18 @@ async fn serve(addr: SocketAddr, state: Arc<AppState>) -> Result<(), Failure> {
         let _ = writeln!(stdout, "{LISTENING}{bound}");
         let _ = stdout.flush();
     }
-    axum::serve(listener, routes::router(state))
+    let drain_limit = state.limits.request_timeout.max(Duration::from_secs(60));
+    axum::serve(listener, routes::router(Arc::clone(&state)))
         .with_graceful_shutdown(shutdown_signal())
         .await
         .map_err(|err| Failure::Environment(format!("the server failed: {err}")))?;
+    // Requests in flight were answered; work abandoned by clients may still run in Python.
+    if !tokio::task::block_in_place(|| state.queue.wait_idle(drain_limit)) {
+        return Err(Failure::Environment(format!(
+            "the Python worker did not finish its last job within {} s of the shutdown; exiting anyway",
+            drain_limit.as_secs()
+        )));
+    }
     eprintln!("cnfmp serve: stopped");
     Ok(())
 }

@@ -109,6 +109,20 @@ impl<T: Send + 'static> PythonQueue<T> {
         self.capacity
     }
 
+    /// Waits (up to `limit`) until no job runs or waits; returns whether that happened. A
+    /// job whose client gave up keeps running until it ends, and exiting the process while
+    /// Python runs it would crash the interpreter mid-call.
+    pub fn wait_idle(&self, limit: Duration) -> bool {
+        let deadline = Instant::now() + limit;
+        while self.pending() > 0 {
+            if Instant::now() >= deadline {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        true
+    }
+
     fn retry_after_s(&self) -> u64 {
         let finished = self.stats.finished.load(Ordering::Relaxed).max(1);
         let mean_s = self.stats.busy_micros.load(Ordering::Relaxed) as f64 / finished as f64 / 1e6;
