@@ -2,8 +2,10 @@
 that no shipped model was trained on (default 500000.., the demonstrations use 0..99), never
 the held-out range, so choosing a setting here leaves the held-out figures unbiased.
 
-For each scene: render, segment the scene's prompt with the film backend (as the HTTP API
-does), predict with the model's config overridden by the variant, execute by physics.
+For each scene: render, take the coarse masks from the simulator (`--masks simulator`, as
+`cnfmp eval` does) or segment the scene's prompt with the film backend (`--masks prompt`, as
+the HTTP API does), predict with the model's config overridden by the variant, execute by
+physics.
 Prints one JSON line per variant: success rate and the predict call's p50 latency.
 
 Blind spot: training-range language_pick_place scenes never show the held-out object
@@ -31,7 +33,7 @@ from cnfmp.segmenter import api as segmenter
 from cnfmp.sim import api as sim
 
 
-def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: int) -> dict:
+def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: int, masks: str) -> dict:
     predictor = core.predictor(model_dir)
     original = {name: getattr(predictor.config, name) for name in variant}
     for name, value in variant.items():
@@ -43,12 +45,16 @@ def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: 
                 info = json.loads(sim.render(task, seed, f"{scratch}/scene"))
                 with open(f"{scratch}/scene/image.png", "rb") as file:
                     image = file.read()
-            try:
-                found = segmenter.segment(image, info["prompt"], "film", None, task, pictures=False)
-            except InputError:
-                continue  # not grounded: a failed scene
+                with open(f"{scratch}/scene/masks.png", "rb") as file:
+                    labels, names = file.read(), info["objects"]
+            if masks == "prompt":
+                try:
+                    found = segmenter.segment(image, info["prompt"], "film", None, task, pictures=False)
+                except InputError:
+                    continue  # not grounded: a failed scene
+                labels, names = found["labels_png"], found["slot_names"]
             started = time.perf_counter()
-            result = json.loads(core.predict(model_dir, image, found["labels_png"], found["slot_names"]))
+            result = json.loads(core.predict(model_dir, image, labels, names))
             latencies.append(time.perf_counter() - started)
             frames = result["frames"]
             arrays = [np.array([f[key] for f in frames]) for key in ("position", "orientation", "gripper")]
@@ -59,7 +65,7 @@ def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: 
     finally:
         for name, value in original.items():
             setattr(predictor.config, name, value)
-    return {"variant": variant, "scenes": scenes, "seed_start": seed_start, "success": successes / scenes,
+    return {"variant": variant, "masks": masks, "scenes": scenes, "seed_start": seed_start, "success": successes / scenes,
             "predict_p50_ms": round(1000 * float(np.median(latencies)), 1) if latencies else None}
 
 
@@ -69,6 +75,8 @@ def main() -> None:
     parser.add_argument("--task", default=None, help="task (default: the model's)")
     parser.add_argument("--scenes", type=int, default=80)
     parser.add_argument("--seed-start", type=int, default=500_000)
+    parser.add_argument("--masks", choices=["prompt", "simulator"], default="prompt",
+                        help="coarse masks from the segmenter (default) or the simulator")
     parser.add_argument("variants", nargs="+", help='JSON objects of config overrides, e.g. \'{"search_starts": 2}\'')
     args = parser.parse_args()
     if args.seed_start < 0 or args.seed_start + args.scenes > 1_000_000:
@@ -76,7 +84,8 @@ def main() -> None:
     torch.set_num_threads(1)
     task = args.task or core.predictor(args.model).config.task
     for variant in args.variants:
-        print(json.dumps(validate(args.model, task, json.loads(variant), args.scenes, args.seed_start)), flush=True)
+        print(json.dumps(validate(args.model, task, json.loads(variant), args.scenes, args.seed_start, args.masks)),
+              flush=True)
 
 
 if __name__ == "__main__":
