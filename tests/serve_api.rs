@@ -315,7 +315,12 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
             post(&url, &content_type, &body)
         })
     };
-    std::thread::sleep(Duration::from_millis(150));
+    // Wait until the request is with the Python worker, so SIGTERM finds it in flight.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !get(&server.url("/metrics")).1.contains("cnfmp_queue_pending 1") {
+        assert!(Instant::now() < deadline, "the request never reached the queue");
+        std::thread::sleep(Duration::from_millis(5));
+    }
     let status = server.terminate();
     assert!(status.success(), "the server exited with {status}");
     assert_eq!(in_flight.join().unwrap().status, 200, "the request in flight was not finished");
