@@ -83,15 +83,15 @@ impl<T: Send + 'static> PythonQueue<T> {
         let (reply, receiver) = oneshot::channel();
         let job = Job { work: Box::new(work), reply, queued_at: Instant::now() };
         self.stats.pending.fetch_add(1, Ordering::Relaxed);
-        let refused = match self.jobs.try_send(job) {
-            Ok(()) => return Ok(receiver),
-            Err(mpsc::error::TrySendError::Full(_)) => Refused::Full { capacity: self.capacity, retry_after_s: 0 },
-            Err(mpsc::error::TrySendError::Closed(_)) => Refused::Stopped,
+        let Err(refused) = self.jobs.try_send(job) else {
+            return Ok(receiver);
         };
         self.stats.pending.fetch_sub(1, Ordering::Relaxed);
         Err(match refused {
-            Refused::Full { capacity, .. } => Refused::Full { capacity, retry_after_s: self.retry_after_s() },
-            stopped => stopped,
+            mpsc::error::TrySendError::Full(_) => {
+                Refused::Full { capacity: self.capacity, retry_after_s: self.retry_after_s() }
+            }
+            mpsc::error::TrySendError::Closed(_) => Refused::Stopped,
         })
     }
 
