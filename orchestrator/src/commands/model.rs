@@ -182,8 +182,9 @@ fn read_objects(path: &Path) -> Result<Vec<String>, Failure> {
     })
 }
 
-/// The task a model directory was trained on (its config.json's "task").
-fn model_task(model: &Path) -> Result<String, Failure> {
+/// The task a model directory was trained on (its config.json's "task"; empty when the
+/// config names none, as the segmenter's checkpoint directory does).
+pub(crate) fn model_task(model: &Path) -> Result<String, Failure> {
     let config_path = model.join("config.json");
     require_file(&config_path, "model config")?;
     let text = fs::read_to_string(&config_path)

@@ -9,6 +9,7 @@ use segmenter_bridge::{Bridge, ModelDescription};
 
 use super::api::ModelSummary;
 use super::error::ApiError;
+use crate::commands::model::model_task;
 use crate::failure::Failure;
 
 /// One served model.
@@ -28,10 +29,7 @@ pub struct Catalog {
 /// True for a directory holding a core model: its config.json names a task (the segmenter's
 /// checkpoint directory, say, does not).
 fn is_core_model(dir: &Path) -> bool {
-    fs::read_to_string(dir.join("config.json"))
-        .ok()
-        .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
-        .is_some_and(|config| config.get("task").is_some_and(serde_json::Value::is_string))
+    model_task(dir).is_ok_and(|task| !task.is_empty())
 }
 
 /// The rows of a model card's first two-column table (`| key | value |`), backticks removed.
