@@ -22,7 +22,7 @@ use crate::files::write_atomically;
 use crate::serve::LISTENING;
 use crate::serve::api::{ErrorResponse, TrajectoryResponse};
 use crate::trajectory::resample::{ResampleTarget, resample};
-use crate::trajectory::{Frame, Pose, Trajectory};
+use crate::trajectory::Trajectory;
 
 /// How long the server may take to load Python, torch and the models.
 const SERVER_START_TIMEOUT: Duration = Duration::from_secs(300);
@@ -160,28 +160,16 @@ fn request_trajectory(base: &str, image: &[u8], prompt: &str, task: &str) -> Res
     Ok((answer, text, round_trip))
 }
 
-/// The answer's trajectory as a validated [`Trajectory`] (prompt and model as metadata).
-fn trajectory_of(answer: &TrajectoryResponse) -> Result<Trajectory, Failure> {
-    let frames = answer
-        .frames
-        .iter()
-        .map(|f| {
-            let [w, x, y, z] = f.orientation;
-            Frame {
-                t: f.t,
-                pose: Pose {
-                    position: nalgebra::Vector3::from(f.position),
-                    orientation: nalgebra::UnitQuaternion::new_normalize(nalgebra::Quaternion::new(w, x, y, z)),
-                },
-                gripper: f.gripper,
-            }
-        })
-        .collect();
-    let mut metadata = Map::new();
-    metadata.insert("prompt".into(), Value::from(answer.prompt.clone()));
-    metadata.insert("model".into(), Value::from(answer.model.name.clone()));
-    Trajectory::new(answer.fps, frames, metadata)
-        .map_err(|err| Failure::Environment(format!("the server returned an invalid trajectory: {err}")))
+/// The answer's trajectory, read and validated by the trajectory file reader (the answer is
+/// the trajectory JSON plus diagnostics); only the prompt and model name stay as metadata.
+fn trajectory_of(answer: &TrajectoryResponse, answer_text: &str) -> Result<Trajectory, Failure> {
+    let mut trajectory = Trajectory::from_json_str(answer_text)
+        .map_err(|err| Failure::Environment(format!("the server returned an invalid trajectory: {err}")))?;
+    trajectory.metadata = Map::from_iter([
+        ("prompt".to_owned(), Value::from(answer.prompt.clone())),
+        ("model".to_owned(), Value::from(answer.model.name.clone())),
+    ]);
+    Ok(trajectory)
 }
 
 pub fn run(args: DemoArgs) -> Result<(), Failure> {
@@ -205,7 +193,7 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
 
     eprintln!("POST {base}/v1/trajectories  prompt={prompt:?}");
     let (answer, answer_text, round_trip_s) = request_trajectory(&base, &image, &prompt, &args.task)?;
-    let trajectory = trajectory_of(&answer)?;
+    let trajectory = trajectory_of(&answer, &answer_text)?;
     let control_hz = bridge.sim_control_hz()?;
     let executed = bridge.sim_execute(&args.task, args.seed, resample(&trajectory, ResampleTarget::Fps(control_hz))?.to_arrays());
     let (success, reasons) = match executed {
