@@ -6,15 +6,12 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::mpsc;
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use base64::Engine;
-use cnfmp::commands::demo::multipart_form;
-use cnfmp::serve::LISTENING;
+use cnfmp::commands::demo::{ServerProcess, multipart_form};
 use common::{arg, cnfmp, repo};
 use serde_json::{Value, json};
 
@@ -22,9 +19,9 @@ const TASK: &str = "language_pick_place";
 /// A held-out scene the shipped model and segmenter solve (also `cnfmp demo`'s default).
 const SEED: u64 = 1_000_003;
 
-/// A running `cnfmp serve`; dropping it kills the process.
+/// A running `cnfmp serve` and its base URL; dropping it stops the process.
 struct Server {
-    child: Child,
+    process: ServerProcess,
     base: String,
 }
 
@@ -35,48 +32,18 @@ impl Server {
     }
 
     fn start_with(models: &Path, extra: &[&str]) -> Server {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_cnfmp"))
-            .args(["serve", "--addr", "127.0.0.1:0", "--models", arg(models)])
-            .args(extra)
-            .stdout(Stdio::piped())
-            .stdin(Stdio::null())
-            .spawn()
-            .expect("cnfmp serve starts");
-        let stdout = child.stdout.take().unwrap();
-        let (found, listening) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if let Some(addr) = line.strip_prefix(LISTENING) {
-                    let _ = found.send(format!("http://{addr}"));
-                }
-            }
-        });
-        let base = listening.recv_timeout(Duration::from_secs(300)).expect("the server listens within 300 s");
-        Server { child, base }
+        let process = ServerProcess::spawn(Path::new(env!("CARGO_BIN_EXE_cnfmp")), models, extra).unwrap();
+        let base = process.base_url(Duration::from_secs(300)).expect("the server listens within 300 s");
+        Server { process, base }
     }
 
     fn url(&self, path: &str) -> String {
         format!("{}{path}", self.base)
     }
 
-    /// Sends SIGTERM and waits (up to 60 s) for the exit.
-    fn terminate(&mut self) -> ExitStatus {
-        unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
-        let deadline = Instant::now() + Duration::from_secs(60);
-        loop {
-            if let Some(status) = self.child.try_wait().unwrap() {
-                return status;
-            }
-            assert!(Instant::now() < deadline, "the server did not exit within 60 s of SIGTERM");
-            std::thread::sleep(Duration::from_millis(50));
-        }
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+    /// Sends SIGTERM; true when the server exits 0 within 60 s.
+    fn terminate(&mut self) -> bool {
+        self.process.stop(Duration::from_secs(60))
     }
 }
 
@@ -321,8 +288,7 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
         assert!(Instant::now() < deadline, "the request never reached the queue");
         std::thread::sleep(Duration::from_millis(5));
     }
-    let status = server.terminate();
-    assert!(status.success(), "the server exited with {status}");
+    assert!(server.terminate(), "the server did not exit 0 within 60 s of SIGTERM");
     assert_eq!(in_flight.join().unwrap().status, 200, "the request in flight was not finished");
 }
 
@@ -361,5 +327,5 @@ fn a_request_over_the_time_limit_gets_504_and_the_server_goes_on() {
     }
     let (status, _) = get(&server.url("/v1/health"));
     assert_eq!(status, 200);
-    assert!(server.terminate().success());
+    assert!(server.terminate(), "the server did not exit 0 within 60 s of SIGTERM");
 }

@@ -6,7 +6,7 @@
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdout, Command, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -48,28 +48,51 @@ pub struct DemoArgs {
     out: PathBuf,
 }
 
-/// The server child process; dropping it stops the server (SIGTERM, then SIGKILL).
-struct ServerProcess {
+/// A `cnfmp serve` child process on a free loopback port, as a client runs one (the demo,
+/// the end-to-end tests); dropping it stops the server (SIGTERM, then SIGKILL).
+pub struct ServerProcess {
     child: Child,
+    /// Receives the base URL once the server prints its "listening on" line.
+    listening: mpsc::Receiver<String>,
 }
 
 impl ServerProcess {
-    fn start(models: &Path) -> Result<(ServerProcess, ChildStdout), Failure> {
-        let exe = std::env::current_exe()
-            .map_err(|err| Failure::Environment(format!("cannot find the cnfmp binary: {err}")))?;
+    /// Starts `exe serve --addr 127.0.0.1:0 --models MODELS EXTRA...` and returns at once;
+    /// [`ServerProcess::base_url`] waits until it listens.
+    pub fn spawn(exe: &Path, models: &Path, extra: &[&str]) -> Result<ServerProcess, Failure> {
         let mut child = Command::new(exe)
             .args(["serve", "--addr", "127.0.0.1:0", "--models"])
             .arg(models)
+            .args(extra)
             .stdout(Stdio::piped())
             .stdin(Stdio::null())
             .spawn()
             .map_err(|err| Failure::Environment(format!("cannot start `cnfmp serve`: {err}")))?;
         let stdout = child.stdout.take().expect("stdout is piped");
-        Ok((ServerProcess { child }, stdout))
+        let (found, listening) = mpsc::channel();
+        // Reads stdout to its end, so the server never writes into a closed pipe.
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if let Some(addr) = line.strip_prefix(LISTENING) {
+                    let _ = found.send(format!("http://{addr}"));
+                }
+            }
+        });
+        Ok(ServerProcess { child, listening })
+    }
+
+    /// Waits (up to `timeout`) for the server to listen; returns its base URL.
+    pub fn base_url(&self, timeout: Duration) -> Result<String, Failure> {
+        self.listening.recv_timeout(timeout).map_err(|err| {
+            Failure::Environment(match err {
+                mpsc::RecvTimeoutError::Timeout => format!("the server did not listen within {} s", timeout.as_secs()),
+                mpsc::RecvTimeoutError::Disconnected => "the server exited before listening (its error is above)".into(),
+            })
+        })
     }
 
     /// SIGTERM, then waits up to `grace` for a clean exit; returns whether it exited 0.
-    fn stop(&mut self, grace: Duration) -> bool {
+    pub fn stop(&mut self, grace: Duration) -> bool {
         // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
         unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
         let deadline = Instant::now() + grace;
@@ -92,24 +115,6 @@ impl Drop for ServerProcess {
             self.stop(Duration::from_secs(10));
         }
     }
-}
-
-/// Waits for the server's "listening on" line; returns the base URL.
-fn wait_until_listening(stdout: ChildStdout) -> Result<String, Failure> {
-    let (found, listening) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if let Some(addr) = line.strip_prefix(LISTENING) {
-                let _ = found.send(format!("http://{addr}"));
-            }
-        }
-    });
-    listening.recv_timeout(SERVER_START_TIMEOUT).map_err(|err| {
-        Failure::Environment(match err {
-            mpsc::RecvTimeoutError::Timeout => format!("the server did not listen within {} s", SERVER_START_TIMEOUT.as_secs()),
-            mpsc::RecvTimeoutError::Disconnected => "the server exited before listening (its error is above)".into(),
-        })
-    })
 }
 
 /// A `multipart/form-data` body of text fields and one PNG file field named "image";
@@ -181,7 +186,9 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         .map_err(|err| Failure::BadInput(format!("cannot create {}: {err}", args.out.display())))?;
     // The server loads while this process renders the scene.
     eprintln!("starting `cnfmp serve` with the models in {} ...", args.models.display());
-    let (mut server, server_stdout) = ServerProcess::start(&args.models)?;
+    let exe = std::env::current_exe()
+        .map_err(|err| Failure::Environment(format!("cannot find the cnfmp binary: {err}")))?;
+    let mut server = ServerProcess::spawn(&exe, &args.models, &[])?;
     let bridge = Bridge::start_default()?;
     let scratch = tempfile::tempdir().map_err(|err| Failure::Environment(format!("cannot create a temporary directory: {err}")))?;
     let scene = bridge.sim_render(&args.task, args.seed, &scratch.path().join("scene"))?;
@@ -189,7 +196,7 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         .map_err(|err| Failure::Environment(format!("cannot read the rendered image: {err}")))?;
     let prompt = args.prompt.clone().unwrap_or_else(|| scene.prompt.clone());
     eprintln!("rendered held-out {} scene {} ({}); waiting for the server ...", args.task, args.seed, scene.objects.join(", "));
-    let base = wait_until_listening(server_stdout)?;
+    let base = server.base_url(SERVER_START_TIMEOUT)?;
 
     eprintln!("POST {base}/v1/trajectories  prompt={prompt:?}");
     let (answer, answer_text, round_trip_s) = request_trajectory(&base, &image, &prompt, &args.task)?;
