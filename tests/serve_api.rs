@@ -11,7 +11,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use base64::Engine;
-use cnfmp::commands::demo::{ServerProcess, multipart_form};
+use cnfmp::commands::demo::{ServerProcess, http_client, multipart_form};
 use common::{arg, cnfmp, repo};
 use serde_json::{Value, json};
 
@@ -57,12 +57,6 @@ struct Answer {
     body: Value,
 }
 
-fn agent() -> ureq::Agent {
-    ureq::Agent::new_with_config(
-        ureq::config::Config::builder().http_status_as_error(false).timeout_global(Some(Duration::from_secs(120))).build(),
-    )
-}
-
 fn read(mut response: ureq::http::Response<ureq::Body>) -> Answer {
     let retry_after = response.headers().get("retry-after").map(|v| v.to_str().unwrap().to_owned());
     let status = response.status().as_u16();
@@ -71,11 +65,11 @@ fn read(mut response: ureq::http::Response<ureq::Body>) -> Answer {
 }
 
 fn post(url: &str, content_type: &str, body: &[u8]) -> Answer {
-    read(agent().post(url).header("Content-Type", content_type).send(body).expect("the server answers"))
+    read(http_client().post(url).header("Content-Type", content_type).send(body).expect("the server answers"))
 }
 
 fn get(url: &str) -> (u16, String) {
-    let mut response = agent().get(url).call().expect("the server answers");
+    let mut response = http_client().get(url).call().expect("the server answers");
     (response.status().as_u16(), response.body_mut().read_to_string().unwrap())
 }
 
@@ -237,7 +231,7 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
     assert_eq!((answer.status, answer.body["error"]["code"].as_str()), (400, Some("invalid_image")), "empty image");
     let (status, text) = get(&server.url("/v1/nothing-here"));
     assert_eq!(status, 404, "{text}");
-    let answer = read(agent().delete(server.url("/v1/models")).call().unwrap());
+    let answer = read(http_client().delete(server.url("/v1/models")).call().unwrap());
     assert_eq!((answer.status, answer.body["error"]["code"].as_str()), (405, Some("method_not_allowed")));
     let still = post_form(&server, &image, &[("prompt", &prompt)]);
     assert_eq!(still.status, 200, "after the bad requests: {}", still.body);

@@ -134,12 +134,18 @@ pub fn multipart_form(image_png: &[u8], fields: &[(&str, &str)]) -> (String, Vec
     (format!("multipart/form-data; boundary={boundary}"), body)
 }
 
+/// An HTTP client for the API: error statuses are answers to read (their JSON says what went
+/// wrong), not transport errors; 120 s per request at most.
+pub fn http_client() -> ureq::Agent {
+    ureq::Agent::new_with_config(
+        ureq::config::Config::builder().http_status_as_error(false).timeout_global(Some(Duration::from_secs(120))).build(),
+    )
+}
+
 /// POSTs the scene to the server as a robot stack would; returns the parsed answer and the
 /// client's round-trip time (s).
 fn request_trajectory(base: &str, image: &[u8], prompt: &str, task: &str) -> Result<(TrajectoryResponse, String, f64), Failure> {
-    let agent = ureq::Agent::new_with_config(
-        ureq::config::Config::builder().http_status_as_error(false).timeout_global(Some(Duration::from_secs(120))).build(),
-    );
+    let agent = http_client();
     let (content_type, body) = multipart_form(image, &[("prompt", prompt), ("task", task), ("include_masks", "true")]);
     let sent = Instant::now();
     let mut response = agent
