@@ -340,13 +340,9 @@ fn content_type(headers: &HeaderMap) -> String {
 }
 
 async fn read_json(request: Request) -> Result<TrajectoryInput, ApiError> {
-    let body = Bytes::from_request(request, &()).await.map_err(|rejection| {
-        if rejection.status() == StatusCode::PAYLOAD_TOO_LARGE {
-            ApiError::too_large("body_too_large", rejection.body_text())
-        } else {
-            ApiError::bad_request("unreadable_body", rejection.body_text())
-        }
-    })?;
+    let body = Bytes::from_request(request, &())
+        .await
+        .map_err(|rejection| body_error(rejection.status(), rejection.body_text(), "unreadable_body"))?;
     let deserializer = &mut serde_json::Deserializer::from_slice(&body);
     let request: TrajectoryJsonRequest = serde_path_to_error::deserialize(deserializer).map_err(|err| {
         let inner = err.inner();
@@ -430,10 +426,15 @@ async fn read_form(request: Request) -> Result<TrajectoryInput, ApiError> {
 }
 
 fn form_error(err: axum::extract::multipart::MultipartError) -> ApiError {
-    if err.status() == StatusCode::PAYLOAD_TOO_LARGE {
-        ApiError::too_large("body_too_large", err.body_text())
+    body_error(err.status(), err.body_text(), "malformed_form")
+}
+
+/// A body that could not be read: 413 `body_too_large` when over the limit, else 400 `code`.
+fn body_error(status: StatusCode, message: String, code: &'static str) -> ApiError {
+    if status == StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::too_large("body_too_large", message)
     } else {
-        ApiError::bad_request("malformed_form", err.body_text())
+        ApiError::bad_request(code, message)
     }
 }
 
