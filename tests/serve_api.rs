@@ -236,7 +236,7 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
     let still = post_form(&server, &image, &[("prompt", &prompt)]);
     assert_eq!(still.status, 200, "after the bad requests: {}", still.body);
 
-    // A burst beyond the queue (1 running + 2 waiting): the rest get 503 + Retry-After at once.
+    // A burst beyond the queue (2 waiting, 1 running): the rest get 503 + Retry-After at once.
     let burst: Vec<_> = (0..8)
         .map(|_| {
             let (url, image, prompt) = (server.url("/v1/trajectories"), image.clone(), prompt.clone());
@@ -252,7 +252,10 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
     let served = answers.iter().filter(|(a, _)| a.status == 200).count();
     let refused: Vec<&(Answer, Duration)> = answers.iter().filter(|(a, _)| a.status == 503).collect();
     assert_eq!(served + refused.len(), 8, "only 200 and 503 expected: {:?}", answers.iter().map(|(a, _)| a.status).collect::<Vec<_>>());
-    assert!(served >= 3, "the running request and the 2 queued ones are served; got {served}");
+    // The queue was empty when the burst began, so its 2 slots always take the first arrivals;
+    // whether a third is served depends on the dispatcher dequeuing the first job before the
+    // others arrive, which a loaded machine does not promise.
+    assert!(served >= 2, "the first 2 arrivals fill the empty queue and are served; got {served}");
     assert!(!refused.is_empty(), "8 simultaneous requests must overflow a queue of 2");
     for (answer, elapsed) in &refused {
         assert_eq!(answer.body["error"]["code"], "overloaded");
