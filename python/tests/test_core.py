@@ -17,7 +17,8 @@ from cnfmp import geometry
 from cnfmp.core import api, data as core_data, training
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.inference import Predictor
-from cnfmp.core.modeling_cnfmp import CONFIG_FILE, WEIGHTS_FILE, CnfmpModel, load_model, save_model
+from cnfmp.core.modeling_cnfmp import CnfmpModel
+from cnfmp.core.models import CONFIG_FILE, WEIGHTS_FILE, load_model, save_model
 from cnfmp.data import generate
 from cnfmp.errors import InputError
 

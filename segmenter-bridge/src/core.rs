@@ -17,8 +17,11 @@ pub struct TrainRequest {
     pub dataset: PathBuf,
     /// Model directory to create (must not exist).
     pub out: PathBuf,
-    /// Optional JSON config (fields of `CnfmpConfig`).
+    /// Optional JSON config (fields of the model type's config dataclass).
     pub config: Option<PathBuf>,
+    /// Model type (`cnfmp`, `cnfmp-nogate`, `cnn-cnmp`, `nfmp`); None = the config file's,
+    /// else `cnfmp`.
+    pub model_type: Option<String>,
     /// Overrides of the config's steps and seed.
     pub steps: Option<u64>,
     pub seed: Option<u64>,
@@ -26,24 +29,19 @@ pub struct TrainRequest {
     pub command: String,
 }
 
-/// Final training losses (normalised units).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-pub struct TrainLosses {
-    pub image_mse: f64,
-    pub object_mse: f64,
-    pub motion_mse: f64,
-}
-
 /// Summary of a finished training run.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct TrainReport {
     pub out: String,
     pub task: String,
+    pub model_type: String,
     pub demos: u64,
     pub steps: u64,
     /// Wall time of the optimisation (s).
     pub seconds: f64,
-    pub final_losses: TrainLosses,
+    /// Final training losses by name (normalised units), e.g. `image_mse`, `motion_mse`
+    /// (which ones depends on the model type).
+    pub final_losses: std::collections::BTreeMap<String, f64>,
     /// Network and latent parameters (without the per-demonstration simplex weights).
     pub parameters: u64,
 }
@@ -83,8 +81,9 @@ pub struct Prediction {
     pub json: String,
     pub model: ModelInfo,
     pub objects: Vec<ObjectEstimate>,
-    /// Whole-image reconstruction PSNR (dB) at field resolution.
-    pub scene_psnr_db: f64,
+    /// Whole-image reconstruction PSNR (dB) at field resolution; None for models without a
+    /// scene field (cnn-cnmp).
+    pub scene_psnr_db: Option<f64>,
     /// Stage timings (ms): decode_inputs, infer_latents, decode_trajectory, total.
     pub timings_ms: serde_json::Map<String, serde_json::Value>,
 }
@@ -120,7 +119,7 @@ impl Bridge {
         self.call_json(
             "cnfmp.core.api",
             "train",
-            (r.dataset, r.out, r.config, r.steps, r.seed, r.command),
+            (r.dataset, r.out, r.config, r.steps, r.seed, r.command, r.model_type),
         )
     }
 

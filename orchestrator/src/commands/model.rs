@@ -44,7 +44,15 @@ pub struct TrainArgs {
     /// Seed of initialisation and sampling (overrides the config).
     #[arg(long)]
     seed: Option<u64>,
+    /// Kind of model: cnfmp (the compositional model), cnfmp-nogate (the ablation without
+    /// temporal gating), cnn-cnmp or nfmp (the baselines of the paper's Table I). Default:
+    /// the --config file's model_type, else cnfmp.
+    #[arg(long, value_parser = MODEL_TYPES)]
+    model_type: Option<String>,
 }
+
+/// Every model type `cnfmp train` builds (python/cnfmp/core/models.py).
+pub const MODEL_TYPES: [&str; 4] = ["cnfmp", "cnfmp-nogate", "cnn-cnmp", "nfmp"];
 
 #[derive(Debug, Args)]
 pub struct PredictArgs {
@@ -157,6 +165,7 @@ pub fn train(args: TrainArgs) -> Result<(), Failure> {
         config: args.config,
         steps: args.steps,
         seed: args.seed,
+        model_type: args.model_type,
         command,
     };
     let report = Bridge::start_default()?.core_train(&request)?;
@@ -208,6 +217,9 @@ fn trajectory_of(prediction: &Prediction) -> Result<Trajectory, Failure> {
 }
 
 fn describe_objects(objects: &[ObjectEstimate]) -> String {
+    if objects.is_empty() {
+        return "none (a scene-level model)".into();
+    }
     objects
         .iter()
         .map(|o| match (o.present, o.psnr_db) {
@@ -267,7 +279,7 @@ struct Episode {
     /// Wall time of the predict call (ms), model loaded (the first call includes loading);
     /// with --from-prompt, segmentation included.
     latency_ms: f64,
-    scene_psnr_db: f64,
+    scene_psnr_db: Option<f64>,
     objects: Vec<ObjectEstimate>,
     timings_ms: Map<String, Value>,
     /// What the segmenter found (--from-prompt).
@@ -284,7 +296,7 @@ impl Episode {
             reasons: vec![format!("not segmented: {reason}")],
             med_cm: f64::NAN,
             latency_ms,
-            scene_psnr_db: f64::NAN,
+            scene_psnr_db: None,
             objects: Vec::new(),
             timings_ms: Map::new(),
             segmentation: None,
@@ -438,7 +450,7 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
         med_cm: mean(episodes.iter().map(|e| e.med_cm)),
         latency_ms_p50: quantile(&warm, 0.5),
         latency_ms_p95: quantile(&warm, 0.95),
-        scene_psnr_db_mean: mean(episodes.iter().map(|e| e.scene_psnr_db)),
+        scene_psnr_db_mean: mean(episodes.iter().filter_map(|e| e.scene_psnr_db)),
         mask_iou_mean: mean(ious),
         wall_time_s: started.elapsed().as_secs_f64(),
         per_episode: episodes,

@@ -299,7 +299,7 @@ fn build_response(
         prompt,
         segmenter: segmentation.document.backend.clone(),
         objects,
-        scene_psnr_db: finite(Some(prediction.scene_psnr_db)),
+        scene_psnr_db: finite(prediction.scene_psnr_db),
         timings_ms,
         masks_png_base64: include_masks.then(|| base64::engine::general_purpose::STANDARD.encode(&segmentation.labels_png)),
     })

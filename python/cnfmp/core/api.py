@@ -12,34 +12,34 @@ import time
 
 import numpy as np
 
-from cnfmp.core import training
-from cnfmp.core.inference import Predictor
-from cnfmp.core.modeling_cnfmp import CONFIG_FILE, WEIGHTS_FILE, load_model
+from cnfmp.core import models, training
+from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.errors import InputError
 from cnfmp.images import decode_image, decode_labels
 
 __all__ = ["describe", "predict", "train"]
 
-_LOADED: dict[str, tuple[tuple, Predictor]] = {}
+_LOADED: dict[str, tuple[tuple, object]] = {}
 
 
 def train(dataset_dir: str, out_dir: str, config_path: str | None, steps: int | None, seed: int | None,
-          command: str) -> str:
+          command: str, model_type: str | None = None) -> str:
     """See :func:`cnfmp.core.training.train`; progress goes to stderr."""
     return training.train(os.fspath(dataset_dir), os.fspath(out_dir), None if config_path is None else os.fspath(config_path),
-                          steps, seed, command=command)
+                          steps, seed, command=command, model_type=model_type)
 
 
-def predictor(model_dir: str) -> Predictor:
+def predictor(model_dir: str):
     """The resident predictor of `model_dir`, (re)loaded when its files changed."""
     model_dir = os.path.abspath(os.fspath(model_dir))
     try:
-        key = tuple(os.stat(os.path.join(model_dir, name)).st_mtime_ns for name in (CONFIG_FILE, WEIGHTS_FILE))
+        key = tuple(os.stat(os.path.join(model_dir, name)).st_mtime_ns
+                    for name in (models.CONFIG_FILE, models.WEIGHTS_FILE))
     except OSError:
-        key = None  # load_model names what is missing
+        key = None  # load_predictor names what is missing
     cached = _LOADED.get(model_dir)
     if cached is None or cached[0] != key or key is None:
-        _LOADED[model_dir] = (key, Predictor(load_model(model_dir)))
+        _LOADED[model_dir] = (key, models.load_predictor(model_dir))
     return _LOADED[model_dir][1]
 
 
@@ -54,8 +54,9 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
 
     Returns the trajectory JSON of design.md, ``{"fps", "frames": [{"t", "position",
     "orientation", "gripper"}]}``, plus ``"model"``, ``"objects"`` (per slot: name, present,
-    simplex weights, reconstruction MSE and PSNR as confidence, mask IoU), ``"scene_psnr_db"``
-    and ``"timings_ms"``.
+    simplex weights, reconstruction MSE and PSNR as confidence, mask IoU; empty for the
+    baselines, which have no objects), ``"scene_psnr_db"`` (null for models without a scene
+    field) and ``"timings_ms"``.
     """
     started = time.perf_counter()
     image, labels = decode_image(image_png), decode_labels(masks_png)
@@ -65,9 +66,10 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
                          "name every labelled object, in label order")
     model = predictor(model_dir)
     c = model.config
-    if c.task_objects:  # distractors are background to this model
+    object_centric = isinstance(c, CnfmpConfig)
+    if object_centric and c.task_objects:  # distractors are background to this model
         labels, objects = np.where(labels > c.task_objects, 0, labels).astype(np.uint8), list(objects)[:c.task_objects]
-    if len(objects) > c.num_objects:
+    if object_centric and len(objects) > c.num_objects:
         raise InputError(f"{len(objects)} objects given but the model ({c.task}) has {c.num_objects} object slot(s): "
                          f"{', '.join(c.object_names)}")
     decoded = time.perf_counter()
@@ -77,7 +79,7 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
                "gripper": round(float(g), 6)}
               for t, p, q, g in zip(traj["t"], traj["position"], traj["orientation"], traj["gripper"])]
     slots = []
-    for slot in range(c.num_objects):
+    for slot in range(c.num_objects if object_centric else 0):
         present = bool(result["present"][slot])
         slots.append({
             "slot": slot + 1, "name": objects[slot] if slot < len(objects) else c.object_names[slot],
@@ -90,7 +92,7 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
     return json.dumps({
         "fps": c.output_fps, "frames": frames,
         "model": {"dir": os.path.abspath(model_dir), "task": c.task, "type": c.model_type},
-        "objects": slots, "scene_psnr_db": result["scene_psnr_db"],
+        "objects": slots, "scene_psnr_db": result.get("scene_psnr_db"),
         "timings_ms": {"decode_inputs": 1000 * (decoded - started), "infer_latents": 1000 * seconds["infer"],
                        "decode_trajectory": 1000 * seconds["decode"],
                        "total": 1000 * (time.perf_counter() - started)},
@@ -106,9 +108,12 @@ def describe(model_dir: str) -> str:
 
     model = predictor(model_dir)
     c = model.config
-    roles = phrases.vocabulary()["task_roles"].get(c.task)
+    object_centric = isinstance(c, CnfmpConfig)
+    # Prompts fill object slots; a model without objects can only be driven by masks.
+    roles = phrases.vocabulary()["task_roles"].get(c.task) if object_centric else None
     return json.dumps({
-        "task": c.task, "type": c.model_type, "objects": list(c.object_names),
-        "task_objects": c.task_objects or c.num_objects, "parameters": model.model.parameter_count(),
+        "task": c.task, "type": c.model_type, "objects": list(c.object_names) if object_centric else [],
+        "task_objects": (c.task_objects or c.num_objects) if object_centric else 0,
+        "parameters": model.model.parameter_count(),
         "roles": roles, "output_fps": c.output_fps, "duration_s": c.duration_s,
     })

@@ -10,17 +10,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from cnfmp.configuration import JsonConfig
+from cnfmp.core.configuration_common import MotionConfig
 from cnfmp.errors import InputError
 
 MODEL_TYPE = "cnfmp"
+#: The ablation without temporal gating (paper Table I, "ours without gating").
+NOGATE_MODEL_TYPE = "cnfmp-nogate"
 
 
 @dataclass
-class CnfmpConfig(JsonConfig):
+class CnfmpConfig(MotionConfig):
     # ---- what the model is for (from data) ----
-    #: Task the demonstrations came from (informative; the model itself is task-agnostic).
-    task: str = ""
     #: Object slots, in label order (label k of a mask = slot k-1). A scene may leave trailing
     #: slots empty (e.g. two cups of at most three); the slot then uses a learned "absent" latent.
     num_objects: int = 0
@@ -32,15 +32,6 @@ class CnfmpConfig(JsonConfig):
     object_names: list[str] = field(default_factory=list)
     #: Whether each slot was ever empty in training (an empty slot is only accepted then).
     slot_can_be_absent: list[bool] = field(default_factory=list)
-    #: Trajectory duration (s): the longest demonstration; shorter ones are held at their end.
-    duration_s: float = 0.0
-    #: Orientation the rotation outputs are relative to, quaternion [w, x, y, z] (the first
-    #: demonstration's start orientation).
-    reference_quat: list[float] = field(default_factory=lambda: [1.0, 0.0, 0.0, 0.0])
-    #: Per-axis mean and standard deviation (m) of the demonstrated positions; the generator
-    #: works in these normalised units.
-    position_mean: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    position_std: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0])
 
     # ---- scene fields ----
     #: Side (px) of the square image the fields are fit to (the 128 px camera image is
@@ -100,11 +91,6 @@ class CnfmpConfig(JsonConfig):
     simplex_entropy_weight: float = 0.0
 
     # ---- motion ----
-    #: Time basis of the motion: normalised Gaussian bumps spread evenly over the trajectory,
-    #: this many per second of duration (at least 4 in all), each as wide as their spacing
-    #: (the basis of classic movement primitives). Smooth by construction, so the motion
-    #: cannot wiggle between the 10 Hz demonstration samples it is fit to.
-    time_basis_per_second: float = 5.0
     #: Weight of the penalty on the generator's latent weights (mean square): a ridge that
     #: keeps the motion from reading more out of the latent than the demonstrations support.
     generator_weight_decay: float = 1e-3
@@ -132,15 +118,11 @@ class CnfmpConfig(JsonConfig):
     image_weight: float = 1.0
 
     # ---- training ----
-    #: Optimisation steps (one seeded run).
-    steps: int = 2000
     #: Demonstrations per step (all of them when the dataset is smaller).
     batch_demos: int = 16
     #: Adam learning rate of the networks and of the endpoint and demonstration latents.
     learning_rate: float = 2e-3
     latent_learning_rate: float = 1e-2
-    #: Seed of the weights' initialisation and of the pixel and time sampling.
-    seed: int = 0
 
     # ---- inference ----
     #: Candidates of the cheap search: random simplex points (plus every training
@@ -159,24 +141,38 @@ class CnfmpConfig(JsonConfig):
     #: so a scene slightly outside the span of the demonstrations stays reachable
     #: (weights down to -margin / num_endpoints; 0 keeps the plain simplex).
     simplex_margin: float = 0.5
-    #: Rate (Hz) of the decoded trajectory.
-    output_fps: float = 50.0
 
     model_type: str = MODEL_TYPE
 
     def check(self, source: str = "config") -> None:
         """InputError for values no model can be built with."""
+        super().check(source)
         positive = ["field_resolution", "latent_dim", "num_endpoints", "field_width", "field_layers",
                     "pixels_per_object", "uniform_pixels",
-                    "gating_width", "time_samples", "steps", "batch_demos", "search_candidates",
+                    "gating_width", "time_samples", "batch_demos", "search_candidates",
                     "search_starts", "search_pixels", "inference_pixels"]
         for name in positive:
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise InputError(f"{source}: {name} must be a whole number >= 1, got {getattr(self, name)!r}")
-        for name in ["learning_rate", "latent_learning_rate", "output_fps"]:
+        for name in ["learning_rate", "latent_learning_rate"]:
             if not getattr(self, name) > 0:
                 raise InputError(f"{source}: {name} must be > 0, got {getattr(self, name)!r}")
         if not isinstance(self.task_objects, int) or self.task_objects < 0:
             raise InputError(f"{source}: task_objects must be a whole number >= 0, got {self.task_objects!r}")
         if not 0.0 <= self.anneal_fraction <= 1.0:
             raise InputError(f"{source}: anneal_fraction must be in [0, 1], got {self.anneal_fraction!r}")
+
+
+@dataclass
+class CnfmpNoGateConfig(CnfmpConfig):
+    """The ablation of Table I without temporal gating: every object latent enters the
+    motion with the same constant weight, z(t) = mean_i z_i. Otherwise identical to cnfmp."""
+
+    temporal_gating: bool = False
+    model_type: str = NOGATE_MODEL_TYPE
+
+    def check(self, source: str = "config") -> None:
+        super().check(source)
+        if self.temporal_gating:
+            raise InputError(f"{source}: {NOGATE_MODEL_TYPE} is the model without temporal gating; "
+                             "temporal_gating must be false")

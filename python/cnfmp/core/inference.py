@@ -17,7 +17,9 @@ import numpy as np
 import torch
 
 from cnfmp.core import data as core_data
-from cnfmp.core.modeling_cnfmp import CnfmpModel, decode_trajectory, output_times, pixel_coords
+from cnfmp.core.layers import pixel_coords
+from cnfmp.core.modeling_cnfmp import CnfmpModel
+from cnfmp.core.motion import decode_trajectory, output_times
 from cnfmp.errors import InputError
 
 

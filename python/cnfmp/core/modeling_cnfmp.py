@@ -27,147 +27,22 @@ Coordinates are image coordinates in [-1, 1]^2 (x right, y down); time is normal
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
 
-from cnfmp import geometry
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
+from cnfmp.core.layers import FilmMLP, LipschitzLinear, encoded_size, fourier_features, plain_mlp
+from cnfmp.core.motion import MOTION_DIM, BasisGenerator, time_basis, time_basis_size
 from cnfmp.errors import InputError
 
-#: Outputs of the trajectory generator: position (3), rotation vector (3), gripper (1).
-MOTION_DIM = 7
 #: Largest entry of an object deformation's linear part A(z) (turns up to ~50 deg, scale
 #: changes up to ~+-50%), and largest residual displacement (image coordinates in [-1, 1]:
 #: 0.15 is about 5 px at 64 px).
 LINEAR_BOUND = 0.8
 RESIDUAL_BOUND = 0.15
-
-
-def fourier_features(x: torch.Tensor, octaves: int, progress: float | None = None) -> torch.Tensor:
-    """Positional encoding ``[x, sin(2^k pi x), cos(2^k pi x)]_{k < octaves}``.
-
-    x: (..., d) -> (..., d * (1 + 2 * octaves)). With `progress` in [0, 1], octave k is faded in
-    as progress * octaves passes k (coarse-to-fine annealing); None means all on.
-    """
-    if octaves == 0:
-        return x
-    freqs = (2.0 ** torch.arange(octaves, dtype=x.dtype, device=x.device)) * math.pi
-    angles = x[..., None, :] * freqs[:, None]  # (..., L, d)
-    enc = torch.cat([torch.sin(angles), torch.cos(angles)], dim=-1)
-    if progress is not None:
-        ramp = torch.clamp(progress * octaves - torch.arange(octaves, dtype=x.dtype, device=x.device), 0.0, 1.0)
-        enc = enc * (0.5 - 0.5 * torch.cos(math.pi * ramp))[:, None]
-    return torch.cat([x, enc.flatten(-2)], dim=-1)
-
-
-def encoded_size(dim: int, octaves: int) -> int:
-    return dim * (1 + 2 * octaves)
-
-
-def time_basis_size(config: CnfmpConfig) -> int:
-    """Number of time basis functions: `time_basis_per_second` per second of the trajectory."""
-    return max(4, int(round(config.time_basis_per_second * config.duration_s)))
-
-
-def time_basis(t: torch.Tensor, config: CnfmpConfig) -> torch.Tensor:
-    """Normalised Gaussian basis of normalised time: (T,) in [0, 1] -> (T, M), rows summing
-    to one; centres evenly spaced over [0, 1], widths equal to the spacing."""
-    m = time_basis_size(config)
-    centres = torch.linspace(0.0, 1.0, m, dtype=t.dtype)
-    width = 1.0 / (m - 1)
-    bumps = torch.exp(-0.5 * ((t[:, None] - centres) / width) ** 2)
-    return bumps / bumps.sum(dim=-1, keepdim=True)
-
-
-class LipschitzLinear(nn.Module):
-    """Linear layer whose infinity-norm is capped by a learned bound softplus(c), the
-    per-layer Lipschitz constant of Liu et al. (2022); the product of the bounds is the penalty."""
-
-    def __init__(self, fan_in: int, fan_out: int):
-        super().__init__()
-        self.linear = nn.Linear(fan_in, fan_out)
-        with torch.no_grad():
-            initial = self.linear.weight.abs().sum(dim=1).max()
-        self.raw_bound = nn.Parameter(torch.log(torch.expm1(initial)))
-
-    def bound(self) -> torch.Tensor:
-        return F.softplus(self.raw_bound)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        row_norms = self.linear.weight.abs().sum(dim=1)
-        scale = torch.clamp(self.bound() / row_norms, max=1.0)
-        return F.linear(x, self.linear.weight * scale[:, None], self.linear.bias)
-
-
-class FilmMLP(nn.Module):
-    """Coordinate MLP whose hidden layers are modulated by a condition vector (FiLM):
-    ``h <- relu((1 + gamma_l(c)) * (W_l h + b_l) + beta_l(c))``.
-
-    forward(x: (B, P, in_dim), c: (B, cond_dim)) -> (B, P, out_dim). With `lipschitz`, the
-    condition-to-modulation network is built from :class:`LipschitzLinear` layers.
-    """
-
-    def __init__(self, in_dim: int, cond_dim: int, width: int, layers: int, out_dim: int, lipschitz: bool = False):
-        super().__init__()
-        self.hidden = nn.ModuleList([nn.Linear(in_dim if k == 0 else width, width) for k in range(layers)])
-        linear = LipschitzLinear if lipschitz else nn.Linear
-        self.film = nn.Sequential(linear(cond_dim, width), nn.SiLU(), linear(width, 2 * width * layers))
-        self.out = nn.Linear(width, out_dim)
-        self.width, self.layers = width, layers
-        with torch.no_grad():  # start as the unmodulated network
-            last = self.film[2].linear if lipschitz else self.film[2]
-            last.weight.mul_(0.1)
-            last.bias.zero_()
-
-    def lipschitz_bound(self) -> torch.Tensor:
-        """Product of the modulation layers' bounds (1 when not Lipschitz-constrained)."""
-        bounds = [m.bound() for m in self.film if isinstance(m, LipschitzLinear)]
-        return torch.stack(bounds).prod() if bounds else torch.ones(())
-
-    def forward(self, x: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
-        mod = self.film(cond).view(cond.shape[0], self.layers, 2, self.width)
-        h = x
-        for k, layer in enumerate(self.hidden):
-            gamma, beta = mod[:, k, 0, None, :], mod[:, k, 1, None, :]
-            h = F.relu((1.0 + gamma) * layer(h) + beta)
-        return self.out(h)
-
-
-def plain_mlp(in_dim: int, width: int, layers: int, out_dim: int) -> nn.Sequential:
-    parts: list[nn.Module] = []
-    for k in range(layers):
-        parts += [nn.Linear(in_dim if k == 0 else width, width), nn.ReLU()]
-    return nn.Sequential(*parts, nn.Linear(width, out_dim))
-
-
-class BasisGenerator(nn.Module):
-    """Trajectory generator G(t | z): a movement primitive whose basis weights are FiLM-
-    modulated by the latent, ``G(t | z) = sum_m phi_m(t) (a_m + B_m z)``: phi the Gaussian
-    time basis, a_m (out,) the mean weights, B_m (out, D) the latent's shift of basis m.
-
-    For every t the output is affine in z, hence in each object's simplex weights, so the
-    motion interpolates between demonstrations the way the latents do; and z acts only
-    through the time-local basis, so a latent moves the motion where it matters and leaves
-    the fixed start pose alone. forward(basis (T, M), z (B, T, D)) -> (B, T, out_dim).
-    """
-
-    def __init__(self, basis_size: int, latent_dim: int, out_dim: int):
-        super().__init__()
-        self.mean = nn.Parameter(torch.zeros(basis_size, out_dim))
-        self.latent_weights = nn.Parameter(0.01 * torch.randn(basis_size, out_dim, latent_dim))
-
-    def sensitivity(self) -> torch.Tensor:
-        """Mean squared latent weight: the penalty that keeps the motion's response to the
-        latent no larger than the demonstrations need."""
-        return (self.latent_weights ** 2).mean()
-
-    def forward(self, basis: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        shift = torch.einsum("tm,mod,btd->bto", basis, self.latent_weights, z)
-        return (basis @ self.mean)[None] + shift
 
 
 class ObjectField(nn.Module):
@@ -325,85 +200,12 @@ class CnfmpModel(nn.Module):
         bounds = [field.deformation.lipschitz_bound() * field.centre.bound() for field in self.objects]
         return torch.stack(bounds).sum()
 
+    @classmethod
+    def from_state(cls, config: CnfmpConfig, state: dict) -> "CnfmpModel":
+        """An untrained model shaped for the saved tensors `state` (its demonstration count)."""
+        if "demo_logits" not in state:
+            raise InputError("the weights have no demo_logits tensor; not a cnfmp model")
+        return cls(config, num_demos=state["demo_logits"].shape[0])
+
     def parameter_count(self, include_demos: bool = False) -> int:
         return sum(p.numel() for name, p in self.named_parameters() if include_demos or name != "demo_logits")
-
-
-# ---- trajectories <-> generator targets ----
-
-def trajectory_targets(trajectory: np.ndarray, config: CnfmpConfig) -> np.ndarray:
-    """(T, 8) ``x y z qw qx qy qz gripper`` -> (T, 7) generator targets."""
-    pos = (trajectory[:, :3] - np.asarray(config.position_mean)) / np.asarray(config.position_std)
-    rot = geometry.to_tangent(trajectory[:, 3:7], config.reference_quat)
-    return np.concatenate([pos, rot, trajectory[:, 7:8]], axis=1)
-
-
-def decode_trajectory(outputs: np.ndarray, config: CnfmpConfig) -> dict:
-    """(T, 7) generator outputs -> ``{"t" (T,) s, "position" (T, 3) m, "orientation" (T, 4)
-    wxyz, "gripper" (T,) in [0, 1]}`` on the config's output grid."""
-    steps = outputs.shape[0]
-    return {
-        "t": np.arange(steps) / config.output_fps,
-        "position": outputs[:, :3] * np.asarray(config.position_std) + np.asarray(config.position_mean),
-        "orientation": geometry.from_tangent(outputs[:, 3:6], config.reference_quat),
-        "gripper": np.clip(outputs[:, 6], 0.0, 1.0),
-    }
-
-
-def output_times(config: CnfmpConfig) -> np.ndarray:
-    """Normalised times of the decoded trajectory: every 1/output_fps s over duration_s."""
-    steps = int(round(config.duration_s * config.output_fps)) + 1
-    return np.arange(steps) / config.output_fps / config.duration_s
-
-
-def pixel_coords(resolution: int) -> torch.Tensor:
-    """(R * R, 2) centres of the pixels in row-major order, as (x, y) in [-1, 1]."""
-    centres = (torch.arange(resolution, dtype=torch.float32) + 0.5) / resolution * 2.0 - 1.0
-    y, x = torch.meshgrid(centres, centres, indexing="ij")
-    return torch.stack([x.reshape(-1), y.reshape(-1)], dim=-1)
-
-
-# ---- model directories ----
-
-CONFIG_FILE, WEIGHTS_FILE, CARD_FILE = "config.json", "model.safetensors", "README.md"
-
-
-def save_model(model: CnfmpModel, out_dir: str) -> None:
-    """Writes config.json and model.safetensors into `out_dir` (which must exist)."""
-    from safetensors.torch import save_file
-
-    with open(os.path.join(out_dir, CONFIG_FILE), "w", encoding="utf-8") as f:
-        f.write(model.config.to_json())
-    save_file({k: v.detach().contiguous() for k, v in model.state_dict().items()}, os.path.join(out_dir, WEIGHTS_FILE))
-
-
-def load_model(model_dir: str) -> CnfmpModel:
-    """Rebuilds the model from config.json and loads model.safetensors (no code is executed
-    from the directory). InputError for a missing or mismatched file."""
-    from safetensors import SafetensorError
-    from safetensors.torch import load_file
-
-    if not os.path.isdir(model_dir):
-        raise InputError(f"model directory {model_dir} does not exist")
-    config_path = os.path.join(model_dir, CONFIG_FILE)
-    if not os.path.isfile(config_path):
-        raise InputError(f"{model_dir} is not a model directory: {CONFIG_FILE} is missing")
-    config = CnfmpConfig.from_file(config_path)
-    weights_path = os.path.join(model_dir, WEIGHTS_FILE)
-    if not os.path.isfile(weights_path):
-        raise InputError(f"{model_dir} is not a complete model directory: {WEIGHTS_FILE} is missing")
-    try:
-        state = load_file(weights_path)
-    except (SafetensorError, OSError) as err:
-        raise InputError(f"{weights_path}: not a readable safetensors file: {err}") from err
-    if "demo_logits" not in state:
-        raise InputError(f"{weights_path}: no demo_logits tensor; not a cnfmp model")
-    model = CnfmpModel(config, num_demos=state["demo_logits"].shape[0])
-    try:
-        model.load_state_dict(state)
-    except RuntimeError as err:
-        raise InputError(f"{weights_path} does not match {CONFIG_FILE}: {str(err).splitlines()[0]}") from err
-    model.eval()
-    for p in model.parameters():
-        p.requires_grad_(False)
-    return model

@@ -20,8 +20,10 @@ import torch
 from cnfmp.artifacts import publish_directory
 from cnfmp.core import data as core_data
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
-from cnfmp.core.modeling_cnfmp import (CARD_FILE, CnfmpModel, pixel_coords, save_model, time_basis,
-                                       trajectory_targets)
+from cnfmp.core import models
+from cnfmp.core.layers import pixel_coords
+from cnfmp.core.modeling_cnfmp import CnfmpModel
+from cnfmp.core.motion import demonstration_targets, motion_loss, time_basis
 from cnfmp.errors import InputError
 
 
@@ -31,17 +33,10 @@ def fit_config_to_data(config: CnfmpConfig, demos: core_data.Demonstrations) -> 
     highest = int(demos.masks.max())
     if highest > slots:
         raise InputError(f"masks use label {highest} but annotation.objects names only {slots} object(s)")
-    positions = np.concatenate([traj[:, :3] for traj in demos.trajectories])
-    longest = max(len(traj) for traj in demos.trajectories)
     present = np.stack([[(masks == k).any() for k in range(1, slots + 1)] for masks in demos.masks])
     return dataclasses.replace(
-        config, task=demos.task, num_objects=slots,
-        object_names=max(demos.objects, key=len),
+        config.fitted_to(demos), num_objects=slots, object_names=max(demos.objects, key=len),
         slot_can_be_absent=[bool(not present[:, k].all()) for k in range(slots)],
-        duration_s=(longest - 1) / demos.fps,
-        reference_quat=[float(v) for v in demos.trajectories[0][0, 3:7]],
-        position_mean=[float(v) for v in positions.mean(axis=0)],
-        position_std=[float(max(v, 1e-3)) for v in positions.std(axis=0)],
     )
 
 
@@ -66,16 +61,8 @@ class TrainingSet:
         self.pools = [[np.flatnonzero(s["dilated"][k].reshape(-1)) if s["present"][k] else everywhere
                        for k in range(n)] for s in scenes]
         self.coords = pixel_coords(res)
-        frames = int(round(config.duration_s * demos.fps)) + 1
-        targets = []
-        for traj in demos.trajectories:
-            t = trajectory_targets(traj, config)
-            held = np.repeat(t[-1:], frames - len(t), axis=0)  # shorter demos hold their last pose
-            targets.append(np.concatenate([t, held]))
-        self.targets = torch.from_numpy(np.stack(targets).astype(np.float32))  # (B, F, 7)
-        self.frames = frames
-        #: Normalised time of every frame (F,).
-        self.times = torch.arange(frames, dtype=torch.float32) / (frames - 1)
+        self.targets, self.times = demonstration_targets(demos.trajectories, demos.fps, config)  # (B, F, 7), (F,)
+        self.frames = len(self.times)
 
     def __len__(self) -> int:
         return self.rgb.shape[0]
@@ -108,13 +95,6 @@ def image_losses(model: CnfmpModel, scene: dict, target: torch.Tensor, present: 
         local = local + (err * present[:, k]).sum()
         count = count + present[:, k].sum()
     return composite, local / count.clamp(min=1)
-
-
-def motion_loss(model: CnfmpModel, outputs: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
-    c = model.config
-    err = (outputs - targets) ** 2
-    return (c.position_weight * err[..., :3].mean() + c.rotation_weight * err[..., 3:6].mean()
-            + c.gripper_weight * err[..., 6].mean())
 
 
 def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) -> tuple[CnfmpModel, dict]:
@@ -155,7 +135,7 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
         label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
         mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
         frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
-        motion = motion_loss(model, model.motion(data.times[frames], latents), data.targets[bt][:, frames])
+        motion = motion_loss(model.config, model.motion(data.times[frames], latents), data.targets[bt][:, frames])
         lipschitz = model.lipschitz_penalty()
         centre_err = ((model.object_centres(latents) - data.centre[bt]) ** 2).sum(dim=-1)
         centre_prior = (centre_err * present).sum() / present.sum().clamp(min=1)
@@ -208,7 +188,7 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     steps = config.motion_refit_steps
     schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 0.5 * (1 + np.cos(np.pi * min(step / steps, 1.0))))
     for step in range(steps):
-        loss = motion_loss(model, model.motion(data.times, latents), data.targets)
+        loss = motion_loss(model.config, model.motion(data.times, latents), data.targets)
         penalty = config.generator_weight_decay * model.generator.sensitivity()
         optimiser.zero_grad(set_to_none=True)
         (loss + penalty).backward()
@@ -223,51 +203,73 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
 
 
 def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps: int | None = None,
-          seed: int | None = None, command: str = "", progress: bool = True) -> str:
-    """Trains on the LeRobot dataset at `dataset_dir` and writes the model directory `out_dir`
-    (must not exist; written to a temporary sibling and renamed when complete).
+          seed: int | None = None, command: str = "", progress: bool = True, model_type: str | None = None) -> str:
+    """Trains a model of `model_type` (see :mod:`cnfmp.core.models`; by default the config
+    file's, else cnfmp) on the LeRobot dataset at `dataset_dir` and writes the model
+    directory `out_dir` (must not exist; written to a temporary sibling and renamed when
+    complete).
 
-    Returns JSON ``{"out", "task", "demos", "steps", "seconds", "final_losses", "parameters"}``.
+    Returns JSON ``{"out", "task", "model_type", "demos", "steps", "seconds", "final_losses", "parameters"}``.
     """
     if os.path.exists(out_dir):
         raise InputError(f"{out_dir} already exists; models are never overwritten, choose a new --out")
-    config = CnfmpConfig() if config_path is None else CnfmpConfig.from_file(config_path)
+    if model_type is None and config_path is not None:
+        model_type = _config_file_model_type(config_path)
+    kind = models.model_type(model_type or models.DEFAULT_MODEL_TYPE)
+    config = kind.config_class() if config_path is None else kind.config_class.from_file(config_path)
     overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
     config = dataclasses.replace(config, **overrides)
     config.check()
     demos = core_data.load_demonstrations(dataset_dir)
-    if config.task_objects:
+    if getattr(config, "task_objects", 0):
         demos = core_data.keep_task_objects(demos, config.task_objects)
     log = (lambda line: print(line, file=sys.stderr, flush=True)) if progress else None
     if log:
-        log(f"training on {len(demos)} {demos.task} demonstrations from {dataset_dir}, {config.steps} steps, seed {config.seed}")
-    model, summary = train_model(demos, config, log)
+        log(f"training {kind.name} on {len(demos)} {demos.task} demonstrations from {dataset_dir}, "
+            f"{config.steps} steps, seed {config.seed}")
+    model, summary = kind.train(demos, config, log)
+
     def fill(staging: str) -> None:
-        save_model(model, staging)
-        with open(os.path.join(staging, CARD_FILE), "w", encoding="utf-8") as f:
-            f.write(model_card(model.config, summary, dataset_dir, demos, command))
+        models.save_model(model, staging)
+        with open(os.path.join(staging, models.CARD_FILE), "w", encoding="utf-8") as f:
+            f.write(model_card(kind, model.config, summary, dataset_dir, demos, command))
 
     publish_directory(out_dir, fill)
-    return json.dumps({"out": out_dir, "task": demos.task, **summary})
+    return json.dumps({"out": out_dir, "task": demos.task, "model_type": kind.name, **summary})
 
 
-def model_card(config: CnfmpConfig, summary: dict, dataset_dir: str, demos: core_data.Demonstrations, command: str) -> str:
+def _config_file_model_type(path: str) -> str | None:
+    """The model_type a config file names, if any (the file is validated when loaded)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            values = json.load(f)
+    except (OSError, ValueError):
+        return None  # from_file reports what is wrong with it
+    return values.get("model_type") if isinstance(values, dict) else None
+
+
+def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, demos: core_data.Demonstrations,
+               command: str) -> str:
     seeds = [s for s in demos.seeds if s >= 0]
     seed_text = f"{min(seeds)}..{max(seeds)}" if seeds else "not recorded"
-    losses = summary["final_losses"]
-    return f"""# cnfmp model: {config.task}
+    losses = ", ".join(f"{name.replace('_', ' ')} {value:.5f}" for name, value in summary["final_losses"].items())
+    objects = (f"| objects (slots, label order) | {', '.join(config.object_names)} |\n"
+               if isinstance(config, CnfmpConfig) else "")
+    extra = (f" (plus {len(demos) * config.num_objects * config.num_endpoints} demonstration simplex weights)"
+             if isinstance(config, CnfmpConfig) else "")
+    return f"""# cnfmp model: {config.task} ({kind.name})
 
-Compositional neural-field movement primitive (paper §II-B) trained by `cnfmp train`.
+{kind.summary}, trained by `cnfmp train --model-type {kind.name}`.
 
 | | |
 |---|---|
 | task | `{config.task}` |
-| objects (slots, label order) | {", ".join(config.object_names)} |
-| dataset | `{os.path.basename(os.path.abspath(dataset_dir))}`: {len(demos)} demonstrations, scene seeds {seed_text} |
+| model type | `{kind.name}` |
+{objects}| dataset | `{os.path.basename(os.path.abspath(dataset_dir))}`: {len(demos)} demonstrations, scene seeds {seed_text} |
 | steps | {summary['steps']} (seed {config.seed}) |
 | wall time | {summary['seconds']:.0f} s, {torch.get_num_threads()} torch thread(s) |
-| parameters | {summary['parameters']:,} (plus {len(demos) * config.num_objects * config.num_endpoints} demonstration simplex weights) |
-| final losses | image MSE {losses['image_mse']:.5f}, object MSE {losses['object_mse']:.5f}, motion MSE {losses['motion_mse']:.5f} (normalised units) |
+| parameters | {summary['parameters']:,}{extra} |
+| final losses | {losses} (normalised units) |
 | trajectory | {config.duration_s:.1f} s at {config.output_fps:g} Hz |
 
 Command:

@@ -13,6 +13,8 @@ Objects in label order: wall, goal marker (a flat disc on the table that nothing
 with). No grasp: the gripper stays open throughout.
 Success: no contact between the gripper and the wall at any physics step, and the final
 measured tool centre point within 2 cm of the goal: 1.5 cm above the marker's centre.
+Training seeds 900000..900026 are a 3x3x3 grid of wall height, goal x and goal y instead
+of random draws (`GRID_SEEDS`), for the grid-trained NFMP baseline.
 """
 
 from __future__ import annotations
@@ -63,6 +65,12 @@ START_POSITION = np.array([0.0, -0.20, 0.06])
 #: and holding still at the goal.
 RISE_S, CROSS_S, DESCEND_S, HOLD_S = 1.0, 1.5, 1.2, 0.4
 GOAL_TOLERANCE = 0.02
+#: Training seeds of the grid-structured set the NFMP baseline trains on (3 levels of each of
+#: 3 parameters, 27 scenes): seed GRID_SEEDS.start + 9 h + 3 x + y has wall height level h,
+#: goal x level x and goal y level y (levels at 1/6, 1/2 and 5/6 of each range; the goal y
+#: range depends on the wall). Within the training seeds, far from the seeds datasets start at.
+GRID_SEEDS = range(900_000, 900_027)
+GRID_LEVELS = (1 / 6, 1 / 2, 5 / 6)
 GRIPPER_BODIES = ("gripper", "gripper_left", "gripper_right")
 
 
@@ -90,14 +98,36 @@ def _far_face_limit(height: float) -> float:
     return camera_y + (hidden_until - camera_y) * (camera_z - height) / camera_z
 
 
+def grid_cell(seed: int) -> tuple[float, float, float] | None:
+    """For a grid seed, the (wall height, goal x, goal y) levels of its cell as fractions of
+    each parameter's range; None for any other seed."""
+    if seed not in GRID_SEEDS:
+        return None
+    cell = seed - GRID_SEEDS.start
+    return GRID_LEVELS[cell // 9], GRID_LEVELS[cell // 3 % 3], GRID_LEVELS[cell % 3]
+
+
+def _within(interval: tuple[float, float], fraction: float) -> float:
+    return interval[0] + fraction * (interval[1] - interval[0])
+
+
 def make_scene(seed: int) -> Scene:
     rng = np.random.default_rng([seed, 9])
-    height = rng.uniform(*HEIGHT_RANGE)
-    thickness = rng.uniform(*THICKNESS_RANGE)
-    near_face = rng.uniform(NEAR_FACE_Y_RANGE[0], min(NEAR_FACE_Y_RANGE[1], _far_face_limit(height) - thickness))
+    grid = grid_cell(seed)
+    if grid is None:
+        height = rng.uniform(*HEIGHT_RANGE)
+        thickness = rng.uniform(*THICKNESS_RANGE)
+        near_face = rng.uniform(NEAR_FACE_Y_RANGE[0], min(NEAR_FACE_Y_RANGE[1], _far_face_limit(height) - thickness))
+    else:  # the grid varies height and goal; the wall's thickness and place sit mid-range
+        height = _within(HEIGHT_RANGE, grid[0])
+        thickness = _within(THICKNESS_RANGE, 0.5)
+        near_face = _within((NEAR_FACE_Y_RANGE[0], min(NEAR_FACE_Y_RANGE[1], _far_face_limit(height) - thickness)), 0.5)
     far_face = near_face + thickness
     goal_y_low = max(far_face + GOAL_BEHIND_WALL, _hidden_until(far_face, height) + GOAL_RADIUS)
-    goal_xy = np.array([rng.uniform(*GOAL_X_RANGE), rng.uniform(goal_y_low, GOAL_Y_MAX)])
+    if grid is None:
+        goal_xy = np.array([rng.uniform(*GOAL_X_RANGE), rng.uniform(goal_y_low, GOAL_Y_MAX)])
+    else:
+        goal_xy = np.array([_within(GOAL_X_RANGE, grid[1]), _within((goal_y_low, GOAL_Y_MAX), grid[2])])
     wall_centre = (0.0, near_face + thickness / 2, height / 2)
     # A static body (no joint); the goal's geoms neither collide nor push, but the marker
     # has its own body so it gets a mask.

@@ -1,0 +1,71 @@
+"""Configuration fields every movement-primitive model of the core shares: what the
+demonstrations say about the motion (filled in by training), the trajectory's time basis and
+output rate, and the training run's seed and length.
+
+The cnfmp model and the baselines (``configuration_cnn_cnmp``, ``configuration_nfmp``) all
+derive from :class:`MotionConfig`, so trajectories are normalised, encoded and decoded the
+same way by every method the benchmark compares.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cnfmp.configuration import JsonConfig
+from cnfmp.errors import InputError
+
+
+@dataclass
+class MotionConfig(JsonConfig):
+    # ---- what the demonstrations say about the motion (from data) ----
+    #: Task the demonstrations came from (informative; the models themselves are task-agnostic).
+    task: str = ""
+    #: Trajectory duration (s): the longest demonstration; shorter ones are held at their end.
+    duration_s: float = 0.0
+    #: Orientation the rotation outputs are relative to, quaternion [w, x, y, z] (the first
+    #: demonstration's start orientation).
+    reference_quat: list[float] = field(default_factory=lambda: [1.0, 0.0, 0.0, 0.0])
+    #: Per-axis mean and standard deviation (m) of the demonstrated positions; the models
+    #: work in these normalised units.
+    position_mean: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    position_std: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0])
+
+    # ---- motion encoding ----
+    #: Time basis of the motion: normalised Gaussian bumps spread evenly over the trajectory,
+    #: this many per second of duration (at least 4 in all), each as wide as their spacing
+    #: (the basis of classic movement primitives). Smooth by construction, so the motion
+    #: cannot wiggle between the 10 Hz demonstration samples it is fit to.
+    time_basis_per_second: float = 5.0
+    #: Rate (Hz) of the decoded trajectory.
+    output_fps: float = 50.0
+
+    # ---- training ----
+    #: Optimisation steps (one seeded run).
+    steps: int = 2000
+    #: Seed of the weights' initialisation and of every random draw of training.
+    seed: int = 0
+
+    def check(self, source: str = "config") -> None:
+        if not isinstance(self.steps, int) or self.steps < 1:
+            raise InputError(f"{source}: steps must be a whole number >= 1, got {self.steps!r}")
+        for name in ["output_fps", "time_basis_per_second"]:
+            if not getattr(self, name) > 0:
+                raise InputError(f"{source}: {name} must be > 0, got {getattr(self, name)!r}")
+
+    def fitted_to(self, demos) -> "MotionConfig":
+        """This config with the "(from data)" motion fields filled in from `demos`
+        (:class:`cnfmp.core.data.Demonstrations`)."""
+        positions = np.concatenate([traj[:, :3] for traj in demos.trajectories])
+        longest = max(len(traj) for traj in demos.trajectories)
+        return dataclasses.replace(
+            self, task=demos.task, duration_s=(longest - 1) / demos.fps,
+            reference_quat=[float(v) for v in demos.trajectories[0][0, 3:7]],
+            position_mean=[float(v) for v in positions.mean(axis=0)],
+            position_std=[float(max(v, 1e-3)) for v in positions.std(axis=0)],
+        )
+
+
+__all__ = ["MotionConfig"]
