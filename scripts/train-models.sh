@@ -2,7 +2,7 @@
 # Reproduces the shipped core models under models/: for each task, a training dataset of the
 # paper's low-data size (wall 10, incline 20, cup 20, cube 30 demonstrations; 30 for
 # language_pick_place, which the paper does not table; training seeds from 0) and one seeded
-# `cnfmp train` run with the default configuration, or scripts/core-configs/<task>.json where
+# `cnfmp train` run with the default configuration, or configs/core/<task>.json where
 # it exists. Two tasks train at a time (one torch thread each). Usage: scripts/train-models.sh [TASK ...]
 # Environment: MODELS_DIR (default models), DATASETS_DIR (default a temporary directory).
 set -euo pipefail
@@ -23,7 +23,7 @@ train_one() {
     rm -rf "$models/$task"
     # A task-specific config where one is needed (language_pick_place: distractors are background).
     local config=()
-    [[ -f scripts/core-configs/$task.json ]] && config=(--config "scripts/core-configs/$task.json")
+    [[ -f configs/core/$task.json ]] && config=(--config "configs/core/$task.json")
     target/release/cnfmp train --dataset "$datasets/$task-$n" --out "$models/$task" --seed 0 "${config[@]}" \
         2> >(sed "s/^/[$task] /" >&2)
 }

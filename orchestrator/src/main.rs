@@ -31,7 +31,7 @@ enum Command {
     /// LeRobot datasets: generate demonstrations from the simulator, convert recorded ones, validate.
     #[command(subcommand)]
     Dataset(DatasetCommand),
-    /// Train a compositional NF-MP model on a LeRobot dataset (progress on stderr).
+    /// Train a model (cnfmp, or a baseline with --model-type) on a LeRobot dataset (progress on stderr).
     Train(model::TrainArgs),
     /// Find the objects a prompt names in an image: per-object masks, a label map, an overlay, JSON.
     Segment(commands::segment::SegmentArgs),
@@ -44,6 +44,9 @@ enum Command {
     Eval(model::EvalArgs),
     /// Serve the HTTP API: POST a scene image and a prompt to /v1/trajectories, get a trajectory.
     Serve(cnfmp::serve::ServeArgs),
+    /// Benchmarks that train and evaluate several methods in one run (the paper's Table I).
+    #[command(subcommand)]
+    Benchmark(commands::benchmark::BenchmarkCommand),
     /// The main job end to end: serve the shipped models, send a held-out scene and its prompt
     /// over HTTP, execute the returned trajectory in the simulator, write an overlay picture.
     Demo(commands::demo::DemoArgs),
@@ -63,6 +66,7 @@ fn main() {
         Command::Eval(args) => model::eval(args),
         Command::Serve(args) => cnfmp::serve::run(args),
         Command::Demo(args) => commands::demo::run(args),
+        Command::Benchmark(command) => commands::benchmark::run(command),
     };
     if let Err(failure) = result {
         eprintln!("error: {failure}");

@@ -152,4 +152,17 @@ impl Bridge {
         prediction.json = json;
         Ok(prediction)
     }
+
+    /// Draws the benchmark chart (`cnfmp.core.report.table_chart`): MED and success per task
+    /// for each method, from `results_json` (a list of objects with `method`, `task`, `med_cm`,
+    /// `success_rate`), methods and tasks in the given order. Returns PNG bytes.
+    pub fn core_table_chart(&self, results_json: &str, methods: &[String], tasks: &[String]) -> Result<Vec<u8>, BridgeError> {
+        let args = (results_json.to_owned(), methods.to_vec(), tasks.to_vec());
+        self.call(move |py| {
+            let run = || -> PyResult<Vec<u8>> {
+                py.import("cnfmp.core.report")?.call_method1("table_chart", args)?.extract()
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })
+    }
 }

@@ -1,5 +1,6 @@
 //! One module per top-level `cnfmp` subcommand; each exposes `run(args) -> Result<(), Failure>`.
 
+pub mod benchmark;
 pub mod dataset;
 pub mod demo;
 pub mod doctor;

@@ -288,12 +288,13 @@ struct Episode {
 }
 
 impl Episode {
-    /// An episode that failed before prediction: the segmenter found no usable objects.
-    fn unsegmented(seed: u64, reason: String, latency_ms: f64) -> Self {
+    /// An episode that failed before a trajectory existed (the segmenter found no usable
+    /// objects, or the model could not take the scene); `reason` says which.
+    fn unpredicted(seed: u64, reason: String, latency_ms: f64) -> Self {
         Episode {
             seed,
             success: false,
-            reasons: vec![format!("not segmented: {reason}")],
+            reasons: vec![reason],
             med_cm: f64::NAN,
             latency_ms,
             scene_psnr_db: None,
@@ -371,7 +372,7 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
             match run_segmenter(bridge, image.clone(), &scene.prompt, &args.segmenter, Some(&args.task), false) {
                 Ok(found) => (found.labels_png, found.slot_names, Some(found.document)),
                 Err(Failure::BadInput(message)) => {
-                    let episode = Episode::unsegmented(seed, message, call.elapsed().as_secs_f64() * 1e3);
+                    let episode = Episode::unpredicted(seed, format!("not segmented: {message}"), call.elapsed().as_secs_f64() * 1e3);
                     eprintln!("[{}/{}] seed {seed}: FAIL ({})", index + 1, args.episodes, episode.reasons.join("; "));
                     episodes.push(episode);
                     continue;
@@ -381,7 +382,18 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
         } else {
             (read_bytes(&scene_dir.join("masks.png"), "rendered masks")?, scene.objects.clone(), None)
         };
-        let prediction = bridge.core_predict(&args.model, image, masks, objects)?;
+        // A scene the model cannot take (e.g. fewer objects than every training scene had)
+        // is a failed episode, not a failed evaluation.
+        let prediction = match bridge.core_predict(&args.model, image, masks, objects) {
+            Ok(prediction) => prediction,
+            Err(BridgeError::InvalidInput(message)) => {
+                let episode = Episode::unpredicted(seed, format!("not predicted: {message}"), call.elapsed().as_secs_f64() * 1e3);
+                eprintln!("[{}/{}] seed {seed}: FAIL ({})", index + 1, args.episodes, episode.reasons.join("; "));
+                episodes.push(episode);
+                continue;
+            }
+            Err(other) => return Err(other.into()),
+        };
         let latency_ms = call.elapsed().as_secs_f64() * 1e3;
         let predicted = resample(
             &trajectory_of(&prediction)?,

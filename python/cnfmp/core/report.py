@@ -1,0 +1,73 @@
+"""Pictures for benchmark reports, drawn with OpenCV (no plotting library in the venv).
+
+:func:`table_chart` draws the Table-I comparison: one panel of MED (cm) and one of success
+rate, each with a group of bars per task and one bar per method.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+
+#: Bar colours (RGB) for up to 8 methods, distinguishable in print.
+PALETTE = [(141, 160, 203), (102, 194, 165), (252, 141, 98), (231, 138, 195), (40, 90, 160),
+           (166, 216, 84), (255, 217, 47), (179, 179, 179)]
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+def _text(canvas, text, origin, scale=0.45, colour=(30, 30, 30), thickness=1):
+    cv2.putText(canvas, text, (int(origin[0]), int(origin[1])), FONT, scale, colour, thickness, cv2.LINE_AA)
+
+
+def _panel(canvas, top, height, left, width, title, values, tasks, methods, top_value, fmt):
+    """One bar panel: values[(method, task)] -> number (NaN/None = no bar)."""
+    bottom = top + height
+    _text(canvas, title, (left, top - 10), 0.55, thickness=1)
+    for k in range(5):  # horizontal grid with labels
+        y = bottom - k / 4 * height
+        cv2.line(canvas, (left, int(y)), (left + width, int(y)), (225, 225, 225), 1)
+        _text(canvas, fmt(top_value * k / 4), (left - 48, y + 4), 0.38)
+    cv2.line(canvas, (left, bottom), (left + width, bottom), (60, 60, 60), 1)
+    group = width / len(tasks)
+    bar = group * 0.8 / len(methods)
+    for t, task in enumerate(tasks):
+        x0 = left + t * group + group * 0.1
+        for m, method in enumerate(methods):
+            value = values.get((method, task))
+            x = x0 + m * bar
+            if value is None or not math.isfinite(value):
+                _text(canvas, "-", (x + bar / 2 - 3, bottom - 4), 0.35)
+                continue
+            h = min(value, top_value) / top_value * height
+            cv2.rectangle(canvas, (int(x), int(bottom - h)), (int(x + bar - 2), bottom), PALETTE[m % len(PALETTE)], -1)
+            if value > top_value:  # clipped: say how far it goes
+                _text(canvas, fmt(value), (x, bottom - h - 3), 0.3)
+        _text(canvas, task.replace("_", " "), (x0, bottom + 16), 0.42)
+
+
+def table_chart(results_json: str, methods: list[str], tasks: list[str]) -> bytes:
+    """PNG bytes of the chart; `results_json` is a list of ``{"method", "task", "med_cm",
+    "success_rate"}``; `methods` and `tasks` fix the order of bars and groups."""
+    results = json.loads(results_json)
+    med = {(r["method"], r["task"]): r.get("med_cm") for r in results}
+    success = {(r["method"], r["task"]): r.get("success_rate") for r in results}
+    width, left, panel_w, panel_h = 1000, 70, 900, 220
+    canvas = np.full((40 + 2 * (panel_h + 70) + 24 * math.ceil(len(methods) / 3), width, 3), 255, np.uint8)
+    finite = [v for v in med.values() if v is not None and math.isfinite(v)]
+    # MED axis: up to 10 cm, or less when every method does better; taller bars are clipped.
+    top_med = min(10.0, max(1.0, math.ceil(max(finite, default=1.0))))
+    _panel(canvas, 40, panel_h, left, panel_w, "MED (cm), lower is better", med, tasks, methods, top_med, lambda v: f"{v:.1f}")
+    _panel(canvas, 40 + panel_h + 70, panel_h, left, panel_w, "success rate, higher is better", success, tasks,
+           methods, 1.0, lambda v: f"{v:.2f}")
+    legend_top = 40 + 2 * (panel_h + 70) - 10
+    for m, method in enumerate(methods):
+        x, y = left + (m % 3) * 300, legend_top + (m // 3) * 24
+        cv2.rectangle(canvas, (x, y - 11), (x + 14, y + 1), PALETTE[m % len(PALETTE)], -1)
+        _text(canvas, method, (x + 20, y))
+    ok, png = cv2.imencode(".png", cv2.cvtColor(canvas, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise RuntimeError("OpenCV could not encode the chart")
+    return png.tobytes()

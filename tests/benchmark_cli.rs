@@ -1,0 +1,84 @@
+//! `cnfmp benchmark table1 --quick` end to end: real datasets, real trainings of every method,
+//! real evaluations by physics, and the report; then a rerun that reuses every finished job,
+//! and bad arguments. The numbers of --quick mean nothing; the machinery is what is tested.
+
+mod common;
+
+use std::time::Instant;
+
+use common::{arg, cnfmp, stderr};
+
+const METHODS: [&str; 5] = ["CNN-CNMP (low)", "CNN-CNMP (high)", "NFMP (grid)", "ours without gating (low)", "ours (low)"];
+const TASKS: [&str; 4] = ["wall_avoidance", "incline_pick_place", "cup_stacking", "cube_stacking"];
+
+#[test]
+fn quick_table1_trains_and_evaluates_every_method_and_a_rerun_reuses_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("reports");
+    let started = Instant::now();
+    let run = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--episodes", "2"]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let first_run = started.elapsed();
+
+    // The CSV: one row per method and task it is evaluated on (NFMP: wall only), numbers in range.
+    let csv = std::fs::read_to_string(out.join("table1.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 4 * 4 + 1, "{csv}");
+    for method in METHODS {
+        let count = rows.iter().filter(|r| r[0] == method).count();
+        assert_eq!(count, if method == "NFMP (grid)" { 1 } else { 4 }, "{method}: {csv}");
+    }
+    for row in &rows {
+        let (success, med): (f64, f64) = (row[5].parse().unwrap(), row[6].parse().unwrap());
+        assert!((0.0..=1.0).contains(&success) && med.is_finite() && med > 0.0, "{row:?}");
+        assert_eq!(row[4], "2", "held-out episodes: {row:?}");
+        let demos: u64 = row[3].parse().unwrap();
+        assert_eq!(demos, if row[0] == "NFMP (grid)" { 27 } else if row[0] == "CNN-CNMP (high)" { 5 } else { 3 }, "{row:?}");
+    }
+
+    // The Markdown report: the paper's layout, the paper's numbers, the claims, the command.
+    let md = std::fs::read_to_string(out.join("table1.md")).unwrap();
+    for method in METHODS {
+        assert!(md.contains(&format!("| {method} |")), "{method} missing:\n{md}");
+    }
+    assert!(md.contains("| wall avoidance | incline pick-place | cup stacking | cube stacking |"), "{md}");
+    assert!(md.contains("0.48 / 1.00"), "the paper's numbers are missing:\n{md}");
+    assert!(md.contains("cnfmp benchmark table1 --quick"), "{md}");
+    assert!(md.contains("## The claims, checked"), "{md}");
+    for task in TASKS {
+        assert!(md.contains(&format!("{task}: ours (low) beats CNN-CNMP (low)")), "{task}:\n{md}");
+    }
+    let png = std::fs::read(out.join("table1.png")).unwrap();
+    assert!(png.starts_with(b"\x89PNG") && png.len() > 5_000, "{} bytes", png.len());
+    let work = out.join("table1-quick-work");
+    assert!(work.join("models/cnfmp-low/cube_stacking/model.safetensors").is_file());
+    assert!(work.join("datasets/wall_avoidance-27-from-900000").is_dir());
+
+    // A rerun reuses every job and writes the same table.
+    let started = Instant::now();
+    let rerun = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--episodes", "2"]);
+    assert!(rerun.status.success(), "{}", stderr(&rerun));
+    assert!(stderr(&rerun).contains("reusing 43 finished job(s)"), "{}", stderr(&rerun));
+    assert!(started.elapsed() < first_run / 3, "the rerun took {:?} after {first_run:?}", started.elapsed());
+    assert_eq!(std::fs::read_to_string(out.join("table1.csv")).unwrap(), csv);
+}
+
+#[test]
+fn bad_arguments_are_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("reports");
+    let zero = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--episodes", "0"]);
+    assert_eq!(zero.status.code(), Some(2), "{}", stderr(&zero));
+    let not_a_dir = dir.path().join("file.json");
+    std::fs::write(&not_a_dir, "{}").unwrap();
+    let configs = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--configs", arg(&not_a_dir)]);
+    assert_eq!(configs.status.code(), Some(2), "{}", stderr(&configs));
+    assert!(stderr(&configs).contains("is not a directory"), "{}", stderr(&configs));
+    let broken = dir.path().join("configs");
+    std::fs::create_dir(&broken).unwrap();
+    std::fs::write(broken.join("wall_avoidance.json"), "[1, 2]").unwrap();
+    let run = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--configs", arg(&broken)]);
+    assert_eq!(run.status.code(), Some(2), "{}", stderr(&run));
+    assert!(stderr(&run).contains("is not a JSON object of config fields"), "{}", stderr(&run));
+    assert!(!out.join("table1.md").exists());
+}
