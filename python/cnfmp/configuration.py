@@ -26,12 +26,13 @@ class JsonConfig:
     def from_dict(cls, values: dict, source: str = "config"):
         """A config from a dict; unknown keys are an InputError naming them."""
         fields = {f.name: f for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - set(fields))
-        if unknown:
-            raise InputError(f"{source}: unknown field(s) {', '.join(unknown)}; known: {', '.join(sorted(fields))}")
+        # Another model's config has other fields too: name the real mistake first.
         expected = fields["model_type"].default
         if values.get("model_type", expected) != expected:
             raise InputError(f"{source}: model_type is {values['model_type']!r}, expected {expected!r}")
+        unknown = sorted(set(values) - set(fields))
+        if unknown:
+            raise InputError(f"{source}: unknown field(s) {', '.join(unknown)}; known: {', '.join(sorted(fields))}")
         config = cls(**values)
         config.check(source)
         return config

@@ -45,6 +45,11 @@ class CnnCnmpConfig(MotionConfig):
     max_context_points: int = 1
     #: Query times per demonstration per step.
     target_points: int = 64
+    #: beta of the beta-NLL loss (Seitzer et al., 2022): 0 is the plain Gaussian NLL, 0.5
+    #: weights each point by its predicted standard deviation. The plain NLL lets the model
+    #: explain the scenes' differences as variance and keep predicting the mean motion for
+    #: thousands of steps before the image starts to matter.
+    nll_beta: float = 0.5
     #: Floor of the predicted standard deviation (normalised units), for a stable likelihood.
     min_std: float = 0.01
 

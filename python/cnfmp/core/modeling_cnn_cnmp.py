@@ -97,7 +97,10 @@ def train_model(demos: core_data.Demonstrations, config: CnnCnmpConfig, log=None
         context, query = torch.from_numpy(context), torch.from_numpy(query)
         rows = batch[:, None]
         mean, std = model(images[batch], times[context], targets[rows, context], times[query])
-        nll = F.gaussian_nll_loss(mean, targets[rows, query], std ** 2)
+        nll = F.gaussian_nll_loss(mean, targets[rows, query], std ** 2, reduction="none")
+        # beta-NLL (Seitzer et al., 2022): each point's NLL weighted by its (detached)
+        # variance ** beta, so points the model deems uncertain still pull the mean.
+        nll = (nll * (std.detach() ** (2 * config.nll_beta))).mean()
         optimiser.zero_grad(set_to_none=True)
         nll.backward()
         optimiser.step()

@@ -41,7 +41,7 @@ def _panel(canvas, top, height, left, width, title, values, tasks, methods, top_
             if value is None or not math.isfinite(value):
                 _text(canvas, "-", (x + bar / 2 - 3, bottom - 4), 0.35)
                 continue
-            h = min(value, top_value) / top_value * height
+            h = max(2.0, min(value, top_value) / top_value * height)  # a zero still shows
             cv2.rectangle(canvas, (int(x), int(bottom - h)), (int(x + bar - 2), bottom), PALETTE[m % len(PALETTE)], -1)
             if value > top_value:  # clipped: say how far it goes
                 _text(canvas, fmt(value), (x, bottom - h - 3), 0.3)
