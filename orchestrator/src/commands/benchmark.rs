@@ -113,13 +113,14 @@ const PAPER: [[Option<(f64, f64)>; 4]; 5] = [
 ];
 
 /// Training steps and inference effort of --quick, per model type (merged into the configs).
-fn quick_overrides(model_type: &str) -> Value {
-    match model_type {
+fn quick_overrides(model_type: &str) -> Map<String, Value> {
+    let overrides = match model_type {
         "cnfmp" | "cnfmp-nogate" => serde_json::json!({"steps": 40, "motion_refit_steps": 20, "search_candidates": 16,
                                                         "search_starts": 2, "refine_steps": 5}),
         "nfmp" => serde_json::json!({"steps": 40, "inference_steps": 10}),
         _ => serde_json::json!({"steps": 40}),
-    }
+    };
+    overrides.as_object().cloned().unwrap_or_default()
 }
 
 /// One child process of the run.
@@ -295,9 +296,7 @@ fn write_config(work: &Path, args: &Table1Args, method: &Method, task: &str) -> 
         }
     }
     if args.quick {
-        if let Value::Object(fields) = quick_overrides(method.model_type) {
-            config.extend(fields);
-        }
+        config.extend(quick_overrides(method.model_type));
     }
     if config.is_empty() {
         return Ok(None);

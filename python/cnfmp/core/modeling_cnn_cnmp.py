@@ -20,7 +20,7 @@ from torch.nn import functional as F
 from cnfmp.core import data as core_data
 from cnfmp.core.configuration_cnn_cnmp import CnnCnmpConfig
 from cnfmp.core.layers import plain_mlp
-from cnfmp.core.motion import MOTION_DIM, decode_trajectory, demonstration_targets, output_times
+from cnfmp.core.motion import MOTION_DIM, LossLog, decode_trajectory, demonstration_targets, output_times
 
 
 def image_tensor(images: np.ndarray, size: int) -> torch.Tensor:
@@ -85,8 +85,7 @@ def train_model(demos: core_data.Demonstrations, config: CnnCnmpConfig, log=None
     model = CnnCnmpModel(config)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     batch_size, frames = min(config.batch_demos, len(demos)), len(times)
-    report_every = max(1, config.steps // 20)
-    started, history = time.monotonic(), []
+    losses = LossLog(config.steps, ["nll", "motion"], log)
     model.train()
     for step in range(config.steps):
         batch = torch.from_numpy(rng.choice(len(demos), size=batch_size, replace=False))
@@ -105,16 +104,11 @@ def train_model(demos: core_data.Demonstrations, config: CnnCnmpConfig, log=None
         nll.backward()
         optimiser.step()
         with torch.no_grad():
-            history.append([nll.item(), ((mean - targets[rows, query]) ** 2).mean().item()])
-        if log and (step % report_every == 0 or step == config.steps - 1):
-            recent = np.mean(history[-report_every:], axis=0)
-            elapsed = time.monotonic() - started
-            log(f"step {step + 1}/{config.steps}  nll {recent[0]:.4f}  motion {recent[1]:.5f}  "
-                f"{elapsed:.0f}s elapsed, ~{elapsed / (step + 1) * (config.steps - step - 1):.0f}s left")
+            losses.record(step, [nll.item(), ((mean - targets[rows, query]) ** 2).mean().item()])
     model.eval()
-    final = np.mean(history[-report_every:], axis=0)
-    summary = {"steps": config.steps, "demos": len(demos), "seconds": round(time.monotonic() - started, 1),
-               "final_losses": {"nll": float(final[0]), "motion_mse": float(final[1])},
+    final = losses.final()
+    summary = {"steps": config.steps, "demos": len(demos), "seconds": losses.seconds(),
+               "final_losses": {"nll": final["nll"], "motion_mse": final["motion"]},
                "parameters": model.parameter_count()}
     return model, summary
 

@@ -22,8 +22,8 @@ from cnfmp.core import data as core_data
 from cnfmp.core.configuration_nfmp import NfmpConfig
 from cnfmp.core.inference import psnr_db
 from cnfmp.core.layers import FilmMLP, encoded_size, fourier_features, pixel_coords, plain_mlp
-from cnfmp.core.motion import (MOTION_DIM, BasisGenerator, decode_trajectory, demonstration_targets, motion_loss,
-                               output_times, time_basis, time_basis_size)
+from cnfmp.core.motion import (MOTION_DIM, BasisGenerator, LossLog, decode_trajectory, demonstration_targets,
+                               motion_loss, output_times, time_basis, time_basis_size)
 from cnfmp.errors import InputError
 
 
@@ -90,8 +90,8 @@ def train_model(demos: core_data.Demonstrations, config: NfmpConfig, log=None) -
                                   {"params": [model.demo_latents], "lr": config.latent_learning_rate}])
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimiser, lambda step: 0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * min(step / config.steps, 1.0))))
-    batch_size, report_every = min(config.batch_demos, len(demos)), max(1, config.steps // 20)
-    started, history = time.monotonic(), []
+    batch_size = min(config.batch_demos, len(demos))
+    losses = LossLog(config.steps, ["image", "motion"], log)
     for step in range(config.steps):
         progress = min(1.0, step / max(1.0, config.anneal_fraction * config.steps))
         batch = torch.from_numpy(rng.choice(len(demos), size=batch_size, replace=False))
@@ -105,16 +105,11 @@ def train_model(demos: core_data.Demonstrations, config: NfmpConfig, log=None) -
         loss.backward()
         optimiser.step()
         schedule.step()
-        history.append([image.item(), motion.item()])
-        if log and (step % report_every == 0 or step == config.steps - 1):
-            recent = np.mean(history[-report_every:], axis=0)
-            elapsed = time.monotonic() - started
-            log(f"step {step + 1}/{config.steps}  image {recent[0]:.5f}  motion {recent[1]:.5f}  "
-                f"{elapsed:.0f}s elapsed, ~{elapsed / (step + 1) * (config.steps - step - 1):.0f}s left")
+        losses.record(step, [image.item(), motion.item()])
     model.eval()
-    final = np.mean(history[-report_every:], axis=0)
-    summary = {"steps": config.steps, "demos": len(demos), "seconds": round(time.monotonic() - started, 1),
-               "final_losses": {"image_mse": float(final[0]), "motion_mse": float(final[1])},
+    final = losses.final()
+    summary = {"steps": config.steps, "demos": len(demos), "seconds": losses.seconds(),
+               "final_losses": {"image_mse": final["image"], "motion_mse": final["motion"]},
                "parameters": model.parameter_count()}
     return model, summary
 

@@ -9,6 +9,8 @@ config.reference_quat, and gripper opening. `config` is any
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import torch
 from torch import nn
@@ -112,3 +114,30 @@ def motion_loss(config, outputs: torch.Tensor, targets: torch.Tensor) -> torch.T
     err = (outputs - targets) ** 2
     return (config.position_weight * err[..., :3].mean() + config.rotation_weight * err[..., 3:6].mean()
             + config.gripper_weight * err[..., 6].mean())
+
+
+class LossLog:
+    """The loss history of a training run: a progress line every ~5% of the steps (through
+    `log`, when given) and the final losses, the mean over the last such window."""
+
+    def __init__(self, steps: int, names: list[str], log=None):
+        self.steps, self.names, self.log = steps, names, log
+        self.every = max(1, steps // 20)
+        self.history: list[list[float]] = []
+        self.started = time.monotonic()
+
+    def record(self, step: int, values: list[float], extra: str = "") -> None:
+        """Losses of step `step` (0-based), in the order of `names`; `extra` joins the line."""
+        self.history.append(values)
+        if self.log and (step % self.every == 0 or step == self.steps - 1):
+            recent = np.mean(self.history[-self.every:], axis=0)
+            elapsed = time.monotonic() - self.started
+            losses = "  ".join(f"{name} {value:.5f}" for name, value in zip(self.names, recent))
+            self.log(f"step {step + 1}/{self.steps}  {losses}  {extra + '  ' if extra else ''}{elapsed:.0f}s elapsed, "
+                     f"~{elapsed / (step + 1) * (self.steps - step - 1):.0f}s left")
+
+    def final(self) -> dict[str, float]:
+        return dict(zip(self.names, (float(v) for v in np.mean(self.history[-self.every:], axis=0))))
+
+    def seconds(self) -> float:
+        return round(time.monotonic() - self.started, 1)

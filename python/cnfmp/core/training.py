@@ -12,7 +12,6 @@ import dataclasses
 import json
 import os
 import sys
-import time
 
 import numpy as np
 import torch
@@ -23,7 +22,7 @@ from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core import models
 from cnfmp.core.layers import pixel_coords
 from cnfmp.core.modeling_cnfmp import CnfmpModel
-from cnfmp.core.motion import demonstration_targets, motion_loss, time_basis
+from cnfmp.core.motion import LossLog, demonstration_targets, motion_loss, time_basis
 from cnfmp.errors import InputError
 
 
@@ -115,8 +114,7 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimiser, lambda step: 0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * min(step / config.steps, 1.0))))
     batch_size = min(config.batch_demos, len(data))
-    report_every = max(1, config.steps // 20)
-    started, history = time.monotonic(), []
+    losses = LossLog(config.steps, ["image", "object", "motion"], log)
     for step in range(config.steps):
         progress = min(1.0, step / max(1.0, config.anneal_fraction * config.steps))
         batch = rng.choice(len(data), size=batch_size, replace=False)
@@ -148,19 +146,13 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
         loss.backward()
         optimiser.step()
         schedule.step()
-        history.append([composite.item(), local.item(), motion.item()])
-        if log and (step % report_every == 0 or step == config.steps - 1):
-            recent = np.mean(history[-report_every:], axis=0)
-            elapsed = time.monotonic() - started
-            eta = elapsed / (step + 1) * (config.steps - step - 1)
-            log(f"step {step + 1}/{config.steps}  image {recent[0]:.5f}  object {recent[1]:.5f}  "
-                f"motion {recent[2]:.5f}  lipschitz {lipschitz.item():.3g}  {elapsed:.0f}s elapsed, ~{eta:.0f}s left")
+        losses.record(step, [composite.item(), local.item(), motion.item()], f"lipschitz {lipschitz.item():.3g}")
     model.eval()
-    final = np.mean(history[-max(1, config.steps // 20):], axis=0)
+    final = losses.final()
     if config.motion_refit_steps:  # the motion the model ships with is the refit one
-        final[2] = refit_motion(model, data, demos, log)
-    summary = {"steps": config.steps, "demos": len(data), "seconds": round(time.monotonic() - started, 1),
-               "final_losses": {"image_mse": float(final[0]), "object_mse": float(final[1]), "motion_mse": float(final[2])},
+        final["motion"] = refit_motion(model, data, demos, log)
+    summary = {"steps": config.steps, "demos": len(data), "seconds": losses.seconds(),
+               "final_losses": {f"{name}_mse": value for name, value in final.items()},
                "parameters": model.parameter_count()}
     return model, summary
 
