@@ -59,6 +59,9 @@ fn train_predict_eval_and_bad_inputs() {
     let report: Value = serde_json::from_slice(&output.stdout).unwrap();
     assert_eq!(report["steps"], 20);
     assert_eq!(report["demos"], 2);
+    assert_eq!(report["model_type"], "cnfmp", "the default model type");
+    let unknown_type = cnfmp(&["train", "--dataset", arg(&dataset), "--out", arg(&dir.path().join("x")), "--model-type", "cnmp"]);
+    assert_bad_input(&unknown_type, "possible values: cnfmp, cnfmp-nogate, cnn-cnmp, nfmp");
     assert!(
         stderr(&output).contains("step 20/20"),
         "progress is shown: {}",

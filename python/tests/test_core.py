@@ -74,6 +74,17 @@ def test_a_few_steps_lower_the_losses(demos):
     assert value(refits[-1], "motion") < value(refits[0], "motion"), refits
 
 
+def test_a_seeded_training_run_is_bitwise_reproducible(demos):
+    """The same seed gives the same weights, bit for bit (models/ cards rely on it)."""
+    config = CnfmpConfig(**{**TINY, "motion_refit_steps": 5}, steps=5, seed=11)
+    first, second = (training.train_model(demos, config)[0].state_dict() for _ in range(2))
+    assert first.keys() == second.keys()
+    for name in first:
+        assert torch.equal(first[name], second[name]), name
+    other = training.train_model(demos, dataclasses.replace(config, seed=12))[0].state_dict()
+    assert not all(torch.equal(first[name], other[name]) for name in first), "the seed has no effect"
+
+
 def test_gating_weights_sum_to_one_and_vary_in_time(trained):
     model, _ = trained
     w = model.gates(torch.linspace(0, 1, 50))

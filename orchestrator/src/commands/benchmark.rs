@@ -146,8 +146,8 @@ enum State {
     Failed,
 }
 
-/// Where a dataset job writes, and its job index.
-struct Datasets(BTreeMap<(String, usize, u64), usize>);
+/// Dataset jobs by (task, demonstrations, first seed): their index in the plan.
+type Datasets = BTreeMap<(String, usize, u64), usize>;
 
 fn table1(args: Table1Args) -> Result<(), Failure> {
     let started = Instant::now();
@@ -171,8 +171,8 @@ fn table1(args: Table1Args) -> Result<(), Failure> {
         .map_err(|err| Failure::Environment(format!("cannot find the cnfmp binary: {err}")))?;
 
     let mut plan: Vec<Job> = Vec::new();
-    let mut datasets = Datasets(BTreeMap::new());
-    let mut rows: Vec<(usize, &str, Option<usize>)> = Vec::new(); // (method, task, eval job)
+    let mut datasets = Datasets::new();
+    let mut rows: Vec<(usize, &str, usize)> = Vec::new(); // (method, task, evaluation job)
     for (m, method) in METHODS.iter().enumerate() {
         for task in method.tasks {
             let t = TASKS.iter().position(|x| x == task).expect("a Table-I task");
@@ -214,7 +214,7 @@ fn table1(args: Table1Args) -> Result<(), Failure> {
                 log: work.join("logs").join(format!("eval-{}-{task}.log", method.key)),
                 needs: vec![trained],
             });
-            rows.push((m, task, Some(plan.len() - 1)));
+            rows.push((m, task, plan.len() - 1));
         }
     }
 
@@ -222,7 +222,7 @@ fn table1(args: Table1Args) -> Result<(), Failure> {
         "table1{}: {} jobs ({} datasets, {} trainings, {} evaluations of {episodes} held-out scenes each), {jobs} at a time; work in {}",
         if args.quick { " --quick" } else { "" },
         plan.len(),
-        datasets.0.len(),
+        datasets.len(),
         rows.len(),
         rows.len(),
         work.display()
@@ -263,7 +263,7 @@ fn path_arg(path: &Path) -> String {
 /// The index of the job generating `count` demonstrations of `task` from `seed` (added to the
 /// plan the first time it is asked for).
 fn dataset_job(plan: &mut Vec<Job>, datasets: &mut Datasets, work: &Path, task: &str, count: usize, seed: u64) -> usize {
-    *datasets.0.entry((task.to_owned(), count, seed)).or_insert_with(|| {
+    *datasets.entry((task.to_owned(), count, seed)).or_insert_with(|| {
         let name = if seed == 0 { format!("{task}-{count}") } else { format!("{task}-{count}-from-{seed}") };
         let out = work.join("datasets").join(&name);
         plan.push(Job {
@@ -478,12 +478,12 @@ fn read_json(path: &Path) -> Result<Value, Failure> {
     serde_json::from_str(&text).map_err(|err| Failure::Environment(format!("{} is not JSON: {err}", path.display())))
 }
 
-fn collect_results(plan: &[Job], rows: &[(usize, &str, Option<usize>)], work: &Path, episodes: u64) -> Result<Vec<Cell>, Failure> {
+fn collect_results(plan: &[Job], rows: &[(usize, &str, usize)], work: &Path, episodes: u64) -> Result<Vec<Cell>, Failure> {
     let number = |value: &Value, key: &str| value.get(key).and_then(Value::as_f64).unwrap_or(f64::NAN);
     rows.iter()
         .map(|&(m, task, eval)| {
             let method = &METHODS[m];
-            let evaluation = read_json(&plan[eval.expect("every row is evaluated")].output)?;
+            let evaluation = read_json(&plan[eval].output)?;
             let train_path = work.join("reports").join(format!("train-{}-{task}.json", method.key));
             // A model reused from an earlier run without its report still has a card; its
             // training time is then unknown here.
