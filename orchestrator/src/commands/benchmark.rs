@@ -123,6 +123,13 @@ fn quick_overrides(model_type: &str) -> Map<String, Value> {
     overrides.as_object().cloned().unwrap_or_default()
 }
 
+/// "a vs b" with two decimals, or as many more (up to four) as it takes for two different
+/// values not to read as a tie.
+fn versus(a: f64, b: f64) -> String {
+    let digits = (2..=4).find(|&d| format!("{a:.d$}") != format!("{b:.d$}")).unwrap_or(4);
+    format!("{a:.digits$} vs {b:.digits$}")
+}
+
 /// One child process of the run.
 struct Job {
     /// What it is, for progress lines ("train cnn-cnmp-low/cube_stacking").
@@ -553,14 +560,14 @@ impl Report {
             let get = |m: &Method| self.cell(m, task).map_or((f64::NAN, f64::NAN), |c| (c.med_cm, c.success_rate));
             let ((ours_med, ours_success), (low_med, low_success), (high_med, _)) = (get(ours), get(cnn_low), get(cnn_high));
             claims.push((
-                format!("{task}: ours (low) beats CNN-CNMP (low) on MED ({ours_med:.2} vs {low_med:.2} cm) and success ({ours_success:.2} vs {low_success:.2})"),
+                format!("{task}: ours (low) beats CNN-CNMP (low) on MED ({} cm) and success ({ours_success:.2} vs {low_success:.2})", versus(ours_med, low_med)),
                 ours_med < low_med && ours_success > low_success,
             ));
-            claims.push((format!("{task}: ours (low) beats CNN-CNMP (high) on MED ({ours_med:.2} vs {high_med:.2} cm)"), ours_med < high_med));
+            claims.push((format!("{task}: ours (low) beats CNN-CNMP (high) on MED ({} cm)", versus(ours_med, high_med)), ours_med < high_med));
             if matches!(task, "cup_stacking" | "cube_stacking") {
                 let (nogate_med, nogate_success) = get(nogate);
                 claims.push((
-                    format!("{task}: ours beats ours without gating (MED {ours_med:.2} vs {nogate_med:.2} cm, success {ours_success:.2} vs {nogate_success:.2})"),
+                    format!("{task}: ours beats ours without gating (MED {} cm, success {ours_success:.2} vs {nogate_success:.2})", versus(ours_med, nogate_med)),
                     ours_med < nogate_med && ours_success >= nogate_success,
                 ));
             }
@@ -657,4 +664,17 @@ fn today() -> String {
         .ok()
         .filter(|out| out.status.success())
         .map_or_else(|| "unknown date".into(), |out| String::from_utf8_lossy(&out.stdout).trim().to_owned())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::versus;
+
+    #[test]
+    fn a_comparison_shows_enough_digits_to_tell_the_values_apart() {
+        assert_eq!(versus(0.66, 17.52), "0.66 vs 17.52");
+        assert_eq!(versus(1.7726, 1.7710), "1.773 vs 1.771");
+        assert_eq!(versus(1.77261, 1.77259), "1.7726 vs 1.7726", "stops at four digits");
+        assert_eq!(versus(2.5, 2.5), "2.5000 vs 2.5000");
+    }
 }
