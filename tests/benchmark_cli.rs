@@ -61,6 +61,24 @@ fn quick_table1_trains_and_evaluates_every_method_and_a_rerun_reuses_them() {
     assert!(stderr(&rerun).contains("reusing 43 finished job(s)"), "{}", stderr(&rerun));
     assert!(started.elapsed() < first_run / 3, "the rerun took {:?} after {first_run:?}", started.elapsed());
     assert_eq!(std::fs::read_to_string(out.join("table1.csv")).unwrap(), csv);
+
+    // A changed training config retrains the models it concerns (and evaluates them again);
+    // every other job is still reused.
+    let configs = dir.path().join("configs");
+    std::fs::create_dir(&configs).unwrap();
+    for entry in std::fs::read_dir(common::repo().join("configs/core")).unwrap() {
+        let file = entry.unwrap().path();
+        std::fs::copy(&file, configs.join(file.file_name().unwrap())).unwrap();
+    }
+    std::fs::write(configs.join("wall_avoidance.json"), r#"{"num_endpoints": 3}"#).unwrap();
+    let changed = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--episodes", "2", "--configs", arg(&configs)]);
+    assert!(changed.status.success(), "{}", stderr(&changed));
+    for key in ["cnfmp-low", "cnfmp-nogate-low"] {
+        assert!(stderr(&changed).contains(&format!("{key}/wall_avoidance: its training config changed")), "{}", stderr(&changed));
+    }
+    assert!(stderr(&changed).contains("reusing 39 finished job(s)"), "{}", stderr(&changed));
+    let used = std::fs::read_to_string(work.join("configs/cnfmp-low-wall_avoidance.json")).unwrap();
+    assert!(used.contains("\"num_endpoints\": 3"), "{used}");
 }
 
 #[test]

@@ -4,8 +4,9 @@
 //! grid for NFMP) -> one training per method and task -> one held-out evaluation per model,
 //! every job a child `cnfmp` process with its own log, run `--jobs` at a time as soon as what
 //! it needs is done. Finished outputs (a dataset, a model directory, an evaluation JSON) are
-//! reused by a rerun unless `--force`. The report (Markdown, CSV, PNG chart) is written from
-//! the evaluation JSONs. Held-out scenes are the evaluation's seeds only: no training, model
+//! reused by a rerun unless `--force`; a model whose training config changed is retrained and
+//! evaluated again (after a code change, use `--force`). The report (Markdown, CSV, PNG
+//! chart) is written from the evaluation JSONs. Held-out scenes are the evaluation's seeds only: no training, model
 //! selection or early stopping ever sees them.
 
 use std::collections::BTreeMap;
@@ -305,22 +306,33 @@ fn write_config(work: &Path, args: &Table1Args, method: &Method, task: &str) -> 
     if args.quick {
         config.extend(quick_overrides(method.model_type));
     }
-    if config.is_empty() {
-        return Ok(None);
-    }
     let path = work.join("configs").join(format!("{}-{task}.json", method.key));
-    let text = serde_json::to_string_pretty(&Value::Object(config)).expect("config serialises");
-    // A changed config must not silently reuse a model trained with the old one.
+    let text = (!config.is_empty()).then(|| serde_json::to_string_pretty(&Value::Object(config)).expect("config serialises"));
+    let recorded = fs::read_to_string(&path).ok();
     let model_dir = work.join("models").join(method.key).join(task);
-    if fs::read_to_string(&path).is_ok_and(|old| old != text) && model_dir.exists() {
-        return Err(Failure::BadInput(format!(
-            "{} changed since {} was trained; rerun with --force (or use another --work)",
-            path.display(),
-            model_dir.display()
-        )));
+    if recorded != text && model_dir.exists() {
+        // A model trained with another config must not be reused, nor its evaluations.
+        eprintln!("{}/{task}: its training config changed; it will be retrained and evaluated again", method.key);
+        remove_output(&model_dir)?;
+        remove_output(&work.join("reports").join(format!("train-{}-{task}.json", method.key)))?;
+        let stale = format!("{}-{task}-", method.key);
+        for entry in fs::read_dir(work.join("evals")).map_err(|err| Failure::Environment(format!("cannot list {}: {err}", work.join("evals").display())))? {
+            let file = entry.map_err(|err| Failure::Environment(format!("cannot list the evaluations: {err}")))?.path();
+            if file.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with(&stale) && n.ends_with(".json")) {
+                remove_output(&file)?;
+            }
+        }
     }
-    write_atomically(&path, text.as_bytes())?;
-    Ok(Some(path))
+    match text {
+        Some(text) => {
+            write_atomically(&path, text.as_bytes())?;
+            Ok(Some(path))
+        }
+        None => {
+            remove_output(&path)?;
+            Ok(None)
+        }
+    }
 }
 
 /// Runs the plan, `parallel` jobs at a time, each as soon as what it needs has succeeded.
@@ -454,7 +466,7 @@ fn remove_output(path: &Path) -> Result<(), Failure> {
     } else {
         Ok(())
     };
-    removed.map_err(|err| Failure::Environment(format!("cannot remove {} for --force: {err}", path.display())))
+    removed.map_err(|err| Failure::Environment(format!("cannot remove the stale {}: {err}", path.display())))
 }
 
 /// The last lines of a log, indented.
