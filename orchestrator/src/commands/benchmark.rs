@@ -6,8 +6,8 @@
 //! it needs is done. Finished outputs (a dataset, a model directory, an evaluation JSON) are
 //! reused by a rerun unless `--force`; a model whose training config changed is retrained and
 //! evaluated again (after a code change, use `--force`). The report (Markdown, CSV, PNG
-//! chart) is written from the evaluation JSONs. Held-out scenes are the evaluation's seeds only: no training, model
-//! selection or early stopping ever sees them.
+//! chart) is written from the evaluation JSONs. Held-out scenes are the evaluation's seeds
+//! only: no training, model selection or early stopping ever sees them.
 
 use std::collections::BTreeMap;
 use std::fs;
@@ -167,8 +167,12 @@ fn table1(args: Table1Args) -> Result<(), Failure> {
     let work = args.work.clone().unwrap_or_else(|| {
         args.out.join(if args.quick { "table1-quick-work" } else { "table1-work" })
     });
-    if args.configs.exists() && !args.configs.is_dir() {
-        return Err(Failure::BadInput(format!("--configs {} is not a directory", args.configs.display())));
+    // A missing directory would silently train the shipped recipes with default configs.
+    if !args.configs.is_dir() {
+        return Err(Failure::BadInput(format!(
+            "--configs {} is not a directory (run from the repository root, or name the per-task config directory)",
+            args.configs.display()
+        )));
     }
     for dir in ["datasets", "models", "evals", "logs", "configs", "reports"] {
         fs::create_dir_all(work.join(dir)).map_err(|err| {
