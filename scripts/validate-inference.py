@@ -25,8 +25,8 @@ import tempfile
 import time
 
 import numpy as np
-import torch
 
+from cnfmp import runtime
 from cnfmp.core import api as core
 from cnfmp.errors import InputError
 from cnfmp.segmenter import api as segmenter
@@ -81,7 +81,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.seed_start < 0 or args.seed_start + args.scenes > 1_000_000:
         parser.error("validation scenes must stay in the training range (seeds below 1000000)")
-    torch.set_num_threads(1)
+    runtime.configure(threads=1)  # one thread, deterministic kernels, as the CLI runs
     task = args.task or core.predictor(args.model).config.task
     for variant in args.variants:
         print(json.dumps(validate(args.model, task, json.loads(variant), args.scenes, args.seed_start, args.masks)),
