@@ -27,10 +27,13 @@ import time
 import numpy as np
 
 from cnfmp import runtime
-from cnfmp.core import api as core
-from cnfmp.errors import InputError
-from cnfmp.segmenter import api as segmenter
-from cnfmp.sim import api as sim
+
+runtime.configure(threads=1)  # before torch loads: one thread, deterministic kernels, as the CLI runs
+
+from cnfmp.core import api as core  # noqa: E402
+from cnfmp.errors import InputError  # noqa: E402
+from cnfmp.segmenter import api as segmenter  # noqa: E402
+from cnfmp.sim import api as sim  # noqa: E402
 
 
 def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: int, masks: str) -> dict:
@@ -81,7 +84,6 @@ def main() -> None:
     args = parser.parse_args()
     if args.seed_start < 0 or args.seed_start + args.scenes > 1_000_000:
         parser.error("validation scenes must stay in the training range (seeds below 1000000)")
-    runtime.configure(threads=1)  # one thread, deterministic kernels, as the CLI runs
     task = args.task or core.predictor(args.model).config.task
     for variant in args.variants:
         print(json.dumps(validate(args.model, task, json.loads(variant), args.scenes, args.seed_start, args.masks)),
