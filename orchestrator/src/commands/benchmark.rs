@@ -194,8 +194,8 @@ fn table1(args: Table1Args) -> Result<(), Failure> {
                 Regime::Grid => (GRID_SIZE, GRID_SEED),
             };
             let dataset = dataset_job(&mut plan, &mut datasets, &work, task, count, seed);
-            let config = write_config(&work, &args, method, task)?;
             let model_dir = work.join("models").join(method.key).join(task);
+            let config = write_config(&work, &args, method, task, &model_dir)?;
             let mut train_args = vec![
                 "train".into(), "--dataset".into(), path_arg(&plan[dataset].output),
                 "--out".into(), path_arg(&model_dir), "--model-type".into(), method.model_type.into(),
@@ -208,7 +208,7 @@ fn table1(args: Table1Args) -> Result<(), Failure> {
                 name: format!("train {}/{task}", method.key),
                 args: train_args,
                 output: model_dir.clone(),
-                stdout: Some(work.join("reports").join(format!("train-{}-{task}.json", method.key))),
+                stdout: Some(train_report(&work, method, task)),
                 log: work.join("logs").join(format!("train-{}-{task}.log", method.key)),
                 needs: vec![dataset],
             });
@@ -294,9 +294,16 @@ fn dataset_job(plan: &mut Vec<Job>, datasets: &mut Datasets, work: &Path, task: 
     })
 }
 
+/// Where the training of `method` on `task` writes its JSON report (the child's stdout).
+fn train_report(work: &Path, method: &Method, task: &str) -> PathBuf {
+    work.join("reports").join(format!("train-{}-{task}.json", method.key))
+}
+
 /// Writes the training config of `method` on `task` (the task's override file for cnfmp
 /// types, then the --quick settings) and returns its path; None when there is nothing to set.
-fn write_config(work: &Path, args: &Table1Args, method: &Method, task: &str) -> Result<Option<PathBuf>, Failure> {
+/// A model already in `model_dir` that was trained with another config is removed, with its
+/// training report and evaluations, so that the run redoes them.
+fn write_config(work: &Path, args: &Table1Args, method: &Method, task: &str, model_dir: &Path) -> Result<Option<PathBuf>, Failure> {
     let mut config = Map::new();
     let task_file = args.configs.join(format!("{task}.json"));
     if method.model_type.starts_with("cnfmp") && task_file.is_file() {
@@ -313,12 +320,11 @@ fn write_config(work: &Path, args: &Table1Args, method: &Method, task: &str) -> 
     let path = work.join("configs").join(format!("{}-{task}.json", method.key));
     let text = (!config.is_empty()).then(|| serde_json::to_string_pretty(&Value::Object(config)).expect("config serialises"));
     let recorded = fs::read_to_string(&path).ok();
-    let model_dir = work.join("models").join(method.key).join(task);
     if recorded != text && model_dir.exists() {
         // A model trained with another config must not be reused, nor its evaluations.
         eprintln!("{}/{task}: its training config changed; it will be retrained and evaluated again", method.key);
-        remove_output(&model_dir)?;
-        remove_output(&work.join("reports").join(format!("train-{}-{task}.json", method.key)))?;
+        remove_output(model_dir)?;
+        remove_output(&train_report(work, method, task))?;
         let stale = format!("{}-{task}-", method.key);
         for entry in fs::read_dir(work.join("evals")).map_err(|err| Failure::Environment(format!("cannot list {}: {err}", work.join("evals").display())))? {
             let file = entry.map_err(|err| Failure::Environment(format!("cannot list the evaluations: {err}")))?.path();
@@ -507,7 +513,7 @@ fn collect_results(plan: &[Job], rows: &[(usize, &str, usize)], work: &Path, epi
         .map(|&(m, task, eval)| {
             let method = &METHODS[m];
             let evaluation = read_json(&plan[eval].output)?;
-            let train_path = work.join("reports").join(format!("train-{}-{task}.json", method.key));
+            let train_path = train_report(work, method, task);
             // A model reused from an earlier run without its report still has a card; its
             // training time is then unknown here.
             let training = read_json(&train_path).unwrap_or(Value::Null);
