@@ -80,6 +80,19 @@ def test_postprocess_keeps_the_most_probable_component_and_drops_specks():
     assert not faint.found and faint.score == pytest.approx(0.3) and not faint.mask.any()
 
 
+def test_a_support_map_chooses_between_candidate_components():
+    probability = np.zeros((64, 64), np.float32)
+    probability[5:25, 5:25] = 0.9  # the larger candidate: chosen on mass alone
+    probability[40:50, 40:50] = 0.9
+    assert extract(probability).candidates == 2 and extract(probability).bbox == [5, 5, 25, 25]
+    support = np.zeros_like(probability)
+    support[38:52, 38:52] = 0.8  # the looser description only holds the smaller one
+    chosen = extract(probability, support=support)
+    assert chosen.bbox == [40, 40, 50, 50] and chosen.candidates == 2
+    assert chosen.score == pytest.approx(0.9)  # the score is the phrase's own, not the support's
+    assert extract(probability, support=np.zeros_like(probability)).bbox == [5, 5, 25, 25]
+
+
 def scene_image():
     """A beige table with a red square (rows 20-40, cols 10-30) and a blue disc around (90, 90)."""
     image = np.full((128, 128, 3), (225, 200, 170), np.uint8)
@@ -207,3 +220,42 @@ def test_closed_vocabulary_backends_are_not_asked_about_unknown_words():
     opened = RecordingBackend(open_vocabulary=True)
     segment(scene_image(), "the unicorn", opened)
     assert opened.asked == [["the unicorn"]]
+
+
+class CategoryAwareBackend(RecordingBackend):
+    """The color backend, which also answers the category "cube" with the square of
+    :func:`twin_image` (a stand-in for a network trained on category-only phrases)."""
+
+    grounds_categories = True
+
+    def probabilities(self, image, phrases_):
+        maps = super().probabilities(image, phrases_)
+        for k, phrase in enumerate(phrases_):
+            if phrase == "cube":
+                maps[k] = 0.0
+                maps[k, 80:100, 80:100] = 0.9
+        return maps
+
+
+def twin_image():
+    """Two red things: a large red disc around (30, 30) and a smaller red square at rows and
+    columns 80-100, so "red cube" lights up both under the color backend."""
+    image = np.full((128, 128, 3), (225, 200, 170), np.uint8)
+    yy, xx = np.mgrid[:128, :128]
+    image[(yy - 30) ** 2 + (xx - 30) ** 2 < 16 ** 2] = (215, 30, 25)
+    image[80:100, 80:100] = (215, 30, 25)
+    return image
+
+
+def test_the_category_arbitrates_when_a_coloured_phrase_lights_up_several_objects():
+    plain = RecordingBackend(open_vocabulary=False)
+    result = segment(twin_image(), "put the red cube on the paper", plain)
+    assert plain.asked == [["red cube", "paper"]]  # no category answers to ask for
+    assert result.results[0].candidates == 2 and result.results[0].bbox[0] < 64  # the larger disc
+    aware = CategoryAwareBackend(open_vocabulary=False)
+    result = segment(twin_image(), "put the red cube on the paper", aware)
+    assert aware.asked == [["red cube", "paper"], ["cube"]]
+    assert result.results[0].bbox == [80, 80, 100, 100] and "arbitrate" in result.timings_ms
+    single = CategoryAwareBackend(open_vocabulary=False)
+    segment(scene_image(), "put the red cube on the blue plate", single)
+    assert single.asked == [["red cube", "blue plate"]]  # one candidate: nothing to arbitrate

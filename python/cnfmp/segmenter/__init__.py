@@ -78,11 +78,40 @@ def segment(image: np.ndarray, prompt: str, backend: Backend | str = "auto") -> 
         probabilities[asked] = backend.probabilities(image, [_phrases.canonical(found[k]) for k in asked])
     grounded = time.perf_counter()
     results = [extract(p, backend.postprocess) for p in probabilities]
+    arbitrated = time.perf_counter()
+    results = arbitrate(image, backend, found, probabilities, results)
+    arbitrated = time.perf_counter() - arbitrated
     labels = label_map(probabilities, results)
     done = time.perf_counter()
     timings = {"parse": 1e3 * (parsed - started), "ground": 1e3 * (grounded - parsed),
-               "postprocess": 1e3 * (done - grounded), "total": 1e3 * (done - started)}
+               "postprocess": 1e3 * (done - grounded - arbitrated), "arbitrate": 1e3 * arbitrated,
+               "total": 1e3 * (done - started)}
     return Segmentation(prompt, backend.name, found, results, probabilities, labels, timings)
+
+
+def arbitrate(image: np.ndarray, backend: Backend, found: list[_phrases.Phrase | None], probabilities: np.ndarray,
+              results: list[ObjectMask]) -> list[ObjectMask]:
+    """`results` with each ambiguous coloured phrase decided by its category.
+
+    "orange cube" on a scene holding an orange cube and an orange can: a network asked about
+    a (colour, category) combination it never saw tends to light up both. Where the map of a
+    phrase with a colour and a category (``found[k]``; None: not to arbitrate) leaves several
+    candidate components, a backend that grounds categories is asked about the category
+    alone ("cube"), once per category, and the candidate that is also of the category wins
+    (:func:`cnfmp.segmenter.postprocess.extract` with a support map). ``probabilities`` is
+    (P, H, W), one map per phrase.
+    """
+    ambiguous = [k for k, (p, r) in enumerate(zip(found, results))
+                 if r.candidates > 1 and p is not None and p.colour is not None and p.category is not None]
+    if not ambiguous or not backend.grounds_categories:
+        return results
+    categories = sorted({found[k].category for k in ambiguous})
+    category_maps = dict(zip(categories, backend.probabilities(
+        image, [_phrases.canonical_text(c, None) for c in categories])))
+    results = list(results)
+    for k in ambiguous:
+        results[k] = extract(probabilities[k], backend.postprocess, support=category_maps[found[k].category])
+    return results
 
 
 def order_by_roles(segmentation: Segmentation, task: str) -> list[int]:
@@ -111,4 +140,4 @@ def order_by_roles(segmentation: Segmentation, task: str) -> list[int]:
     return order
 
 
-__all__ = ["Segmentation", "check_image", "order_by_roles", "segment"]
+__all__ = ["Segmentation", "arbitrate", "check_image", "order_by_roles", "segment"]

@@ -40,6 +40,10 @@ class Backend(abc.ABC):
     #: vision-language models can; film and color only know the vocabulary, so a phrase the
     #: parser cannot ground is answered "not found" without asking them).
     open_vocabulary: bool = False
+    #: Whether the backend grounds a category alone ("cube": every cube, whatever its colour).
+    #: Such a backend is asked about the category when a coloured phrase lights up several
+    #: objects, and the one that is also of the category wins (see :func:`cnfmp.segmenter.segment`).
+    grounds_categories: bool = False
 
     @abc.abstractmethod
     def probabilities(self, image: np.ndarray, phrases: list[str]) -> np.ndarray:

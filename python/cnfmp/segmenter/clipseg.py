@@ -106,6 +106,7 @@ class ClipSegBackend(Backend):
 
     name = "clipseg"
     open_vocabulary = True
+    grounds_categories = True
     # CLIPSeg's sigmoid outputs are soft: a clearly visible object peaks around 0.5-0.9, so the
     # default 0.5/0.6 cut-offs would drop its edges and many true detections.
     postprocess = PostprocessConfig(threshold=0.4, min_score=0.5)

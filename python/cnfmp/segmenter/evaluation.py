@@ -13,7 +13,8 @@ scenes, split three ways:
 Also reported: how often a phrase naming something absent from the scene
 (``rejection_rate``) or something outside the vocabulary never used in training ("the
 unicorn", ``unknown_rejection_rate``) is answered with "not found", and the grounding latency
-per scene.
+per scene. Phrases whose maps are ambiguous are arbitrated by their category as
+:func:`cnfmp.segmenter.segment` does (:func:`cnfmp.segmenter.arbitrate`).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import time
 import numpy as np
 
 from cnfmp.errors import InputError
-from cnfmp.segmenter import phrases as vocab
+from cnfmp.segmenter import arbitrate, phrases as vocab
 from cnfmp.segmenter.base import Backend
 from cnfmp.segmenter.postprocess import extract
 from cnfmp.segmenter.training_film import is_absent, render_scene, vocabulary_things
@@ -92,8 +93,13 @@ def evaluate(backend: Backend, task: str, episodes: int, seed_start: int, log=No
         grounded = [text if split == "paraphrase_raw" else _as_segment_grounds(text)
                     for split, text in zip(splits, phrase_list)]
         probabilities = backend.probabilities(image, grounded)
-        latencies.append(1e3 * (time.perf_counter() - call))
         results = [extract(p, backend.postprocess) for p in probabilities]
+        # Ambiguous maps are decided as segment() decides them, except for the raw
+        # paraphrases, which measure the backend alone.
+        parsed = [None if split == "paraphrase_raw" else next(iter(vocab.parse(text)), None)
+                  for split, text in zip(splits, phrase_list)]
+        results = arbitrate(image, backend, parsed, probabilities, results)
+        latencies.append(1e3 * (time.perf_counter() - call))
         scene_scores = []
         for (split, label, phrase), result in zip(queries, results):
             value = iou(result.mask, labels == label)

@@ -154,6 +154,8 @@ class FilmBackend(Backend):
                  encoder: PhraseEncoder | None = None):
         self.config, self.network, self.model_dir = config, network.eval(), model_dir
         self.encoder = encoder or PhraseEncoder()
+        # Only a network trained on category-only phrases answers them meaningfully.
+        self.grounds_categories = config.category_positive_fraction > 0
 
     @classmethod
     def from_dir(cls, model_dir: Path) -> "FilmBackend":

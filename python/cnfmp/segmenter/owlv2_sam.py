@@ -25,6 +25,7 @@ class Owlv2SamBackend(Backend):
 
     name = "owlv2-sam"
     open_vocabulary = True
+    grounds_categories = True
     # Probabilities are scaled by OWLv2 sigmoid scores, which sit around 0.2-0.7 for clearly
     # visible objects and below ~0.1 for absent ones (0.1 is OWLv2's usual detection cut-off).
     postprocess = PostprocessConfig(threshold=0.1, min_score=0.15)

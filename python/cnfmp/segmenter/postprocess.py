@@ -43,11 +43,24 @@ class ObjectMask:
     area: int
     bbox: list[int] | None
     centroid: list[float] | None
+    candidates: int = 0
 
 
-def extract(probability: np.ndarray, config: PostprocessConfig = PostprocessConfig()) -> ObjectMask:
-    """(H, W) float probabilities in [0, 1] -> the phrase's object mask."""
-    probability = np.nan_to_num(np.asarray(probability, dtype=np.float32), nan=0.0).clip(0.0, 1.0)
+def _as_probability(array: np.ndarray) -> np.ndarray:
+    return np.nan_to_num(np.asarray(array, dtype=np.float32), nan=0.0).clip(0.0, 1.0)
+
+
+def extract(probability: np.ndarray, config: PostprocessConfig = PostprocessConfig(),
+            support: np.ndarray | None = None) -> ObjectMask:
+    """(H, W) float probabilities in [0, 1] -> the phrase's object mask.
+
+    `support`, (H, W) probabilities of a looser description of the same object, re-ranks the
+    candidate components by their probability mass times the support's mean inside them
+    (mass alone breaks ties, e.g. a support that is zero everywhere); the chosen mask and its
+    score still come from `probability`.
+    """
+    probability = _as_probability(probability)
+    support = None if support is None else _as_probability(support)
     height, width = probability.shape
     binary = (probability > config.threshold).astype(np.uint8)
     side = max(1, round(config.kernel_fraction * min(height, width)))
@@ -57,16 +70,19 @@ def extract(probability: np.ndarray, config: PostprocessConfig = PostprocessConf
         binary = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, kernel)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
     min_area = max(1, round(config.min_area_fraction * height * width))
-    best, best_mass = 0, 0.0
+    best, best_mass, best_rank, candidates = 0, 0.0, (0.0, 0.0), 0
     for label in range(1, count):
         if stats[label, cv2.CC_STAT_AREA] < min_area:
             continue
-        mass = float(probability[labels == label].sum())
-        if mass > best_mass:
-            best, best_mass = label, mass
+        candidates += 1
+        inside = labels == label
+        mass = float(probability[inside].sum())
+        rank = (mass * (1.0 if support is None else float(support[inside].mean())), mass)
+        if rank > best_rank:
+            best, best_mass, best_rank = label, mass, rank
     peak = float(probability.max(initial=0.0))
     if best == 0:
-        return ObjectMask(np.zeros((height, width), bool), False, peak, 0, None, None)
+        return ObjectMask(np.zeros((height, width), bool), False, peak, 0, None, None, candidates)
     mask = labels == best
     area = int(stats[best, cv2.CC_STAT_AREA])
     score = best_mass / area
@@ -74,8 +90,9 @@ def extract(probability: np.ndarray, config: PostprocessConfig = PostprocessConf
     ys, xs = np.nonzero(mask)
     found = score >= config.min_score
     if not found:
-        return ObjectMask(np.zeros((height, width), bool), False, score, 0, None, None)
-    return ObjectMask(mask, True, score, area, [x, y, x + w, y + h], [float(xs.mean()), float(ys.mean())])
+        return ObjectMask(np.zeros((height, width), bool), False, score, 0, None, None, candidates)
+    return ObjectMask(mask, True, score, area, [x, y, x + w, y + h], [float(xs.mean()), float(ys.mean())],
+                      candidates)
 
 
 def label_map(probabilities: np.ndarray, results: list[ObjectMask]) -> np.ndarray:
