@@ -36,7 +36,8 @@ from cnfmp.segmenter import api as segmenter  # noqa: E402
 from cnfmp.sim import api as sim  # noqa: E402
 
 
-def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: int, masks: str) -> dict:
+def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: int, masks: str,
+             segmenter_weights: str | None = None) -> dict:
     predictor = core.predictor(model_dir)
     original = {name: getattr(predictor.config, name) for name in variant}
     for name, value in variant.items():
@@ -52,7 +53,7 @@ def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: 
                     labels, names = file.read(), info["objects"]
             if masks == "prompt":
                 try:
-                    found = segmenter.segment(image, info["prompt"], "film", None, task, pictures=False)
+                    found = segmenter.segment(image, info["prompt"], "film", segmenter_weights, task, pictures=False)
                 except InputError:
                     continue  # not grounded: a failed scene
                 labels, names = found["labels_png"], found["slot_names"]
@@ -80,13 +81,16 @@ def main() -> None:
     parser.add_argument("--seed-start", type=int, default=500_000)
     parser.add_argument("--masks", choices=["prompt", "simulator"], default="prompt",
                         help="coarse masks from the segmenter (default) or the simulator")
+    parser.add_argument("--segmenter-weights", default=None,
+                        help="film segmenter directory for --masks prompt (default: models/segmenter)")
     parser.add_argument("variants", nargs="+", help='JSON objects of config overrides, e.g. \'{"search_starts": 2}\'')
     args = parser.parse_args()
     if args.seed_start < 0 or args.seed_start + args.scenes > 1_000_000:
         parser.error("validation scenes must stay in the training range (seeds below 1000000)")
     task = args.task or core.predictor(args.model).config.task
     for variant in args.variants:
-        print(json.dumps(validate(args.model, task, json.loads(variant), args.scenes, args.seed_start, args.masks)),
+        print(json.dumps(validate(args.model, task, json.loads(variant), args.scenes, args.seed_start, args.masks,
+                                  args.segmenter_weights)),
               flush=True)
 
 

@@ -51,7 +51,9 @@ class FilmSegmenterConfig(JsonConfig):
     unknown_negative_fraction: float = 0.25
     #: Of the positive samples of coloured objects, the fraction asked by category alone
     #: ("the cube", target: every cube of the scene), so shape is learned apart from colour.
-    category_positive_fraction: float = 0.0
+    #: A checkpoint trained with it (> 0) is also asked about the category when a coloured
+    #: phrase lights up several objects (:func:`cnfmp.segmenter.arbitrate`).
+    category_positive_fraction: float = 0.2
     #: Embedding augmentation, so the decoder answers a neighbourhood of each training phrase
     #: rather than the phrase's exact point (paraphrases land nearby, not on it): the chance
     #: that a sample's embedding is a random convex mix of two phrasings of the same thing,
