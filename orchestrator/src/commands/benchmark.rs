@@ -4,8 +4,9 @@
 //! grid for NFMP) -> one training per method and task -> one held-out evaluation per model,
 //! every job a child `cnfmp` process with its own log, run `--jobs` at a time as soon as what
 //! it needs is done. Finished outputs (a dataset, a model directory, an evaluation JSON) are
-//! reused by a rerun unless `--force`; a model whose training config changed is retrained and
-//! evaluated again (after a code change, use `--force`). The report (Markdown, CSV, PNG
+//! reused by a rerun unless `--force` or unless something it was made from is redone; a model
+//! whose training config changed is retrained and evaluated again (after a code change, use
+//! `--force`). The report (Markdown, CSV, PNG
 //! chart) is written from the evaluation JSONs. Held-out scenes are the evaluation's seeds
 //! only: no training, model selection or early stopping ever sees them.
 
@@ -302,7 +303,7 @@ fn train_report(work: &Path, method: &Method, task: &str) -> PathBuf {
 /// Writes the training config of `method` on `task` (the task's override file for cnfmp
 /// types, then the --quick settings) and returns its path; None when there is nothing to set.
 /// A model already in `model_dir` that was trained with another config is removed, with its
-/// training report and evaluations, so that the run redoes them.
+/// training report, so that the run retrains it (and, by `run_jobs`, evaluates it again).
 fn write_config(work: &Path, args: &Table1Args, method: &Method, task: &str, model_dir: &Path) -> Result<Option<PathBuf>, Failure> {
     let mut config = Map::new();
     let task_file = args.configs.join(format!("{task}.json"));
@@ -321,17 +322,10 @@ fn write_config(work: &Path, args: &Table1Args, method: &Method, task: &str, mod
     let text = (!config.is_empty()).then(|| serde_json::to_string_pretty(&Value::Object(config)).expect("config serialises"));
     let recorded = fs::read_to_string(&path).ok();
     if recorded != text && model_dir.exists() {
-        // A model trained with another config must not be reused, nor its evaluations.
+        // A model trained with another config must not be reused.
         eprintln!("{}/{task}: its training config changed; it will be retrained and evaluated again", method.key);
         remove_output(model_dir)?;
         remove_output(&train_report(work, method, task))?;
-        let stale = format!("{}-{task}-", method.key);
-        for entry in fs::read_dir(work.join("evals")).map_err(|err| Failure::Environment(format!("cannot list {}: {err}", work.join("evals").display())))? {
-            let file = entry.map_err(|err| Failure::Environment(format!("cannot list the evaluations: {err}")))?.path();
-            if file.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with(&stale) && n.ends_with(".json")) {
-                remove_output(&file)?;
-            }
-        }
     }
     match text {
         Some(text) => {
@@ -353,12 +347,16 @@ fn run_jobs(exe: &Path, plan: &[Job], parallel: usize, force: bool, started: Ins
     let mut running: Vec<(usize, Child, Instant)> = Vec::new();
     let mut finished = 0usize;
     let stamp = |started: Instant| format!("{:>5.0}s", started.elapsed().as_secs_f64());
+    // A finished output is reused only when everything it was made from was reused too: an
+    // evaluation of a model that is being retrained is stale. Jobs need only earlier jobs.
     for (index, job) in plan.iter().enumerate() {
-        if force {
-            remove_output(&job.output)?;
-        } else if job.output.exists() {
+        debug_assert!(job.needs.iter().all(|&n| n < index), "{} needs a later job", job.name);
+        let inputs_reused = job.needs.iter().all(|&n| states[n] == State::Reused);
+        if !force && inputs_reused && job.output.exists() {
             states[index] = State::Reused;
             finished += 1;
+        } else {
+            remove_output(&job.output)?;
         }
     }
     if finished > 0 {
