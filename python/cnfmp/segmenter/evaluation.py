@@ -41,12 +41,6 @@ def _is_heldout_instance(task: str, scene_params: dict, label: int) -> bool:
     return obj["category"] in MOVABLE_NOUNS and is_heldout_combination(obj["category"], obj["colour"])
 
 
-def _as_segment_grounds(text: str) -> str:
-    """What :func:`cnfmp.segmenter.segment` hands the backend for a one-phrase prompt."""
-    found = vocab.parse(text)
-    return vocab.canonical(found[0]) if found else text
-
-
 def iou(a: np.ndarray, b: np.ndarray) -> float:
     union = np.logical_or(a, b).sum()
     return float(np.logical_and(a, b).sum() / union) if union else 1.0
@@ -90,14 +84,14 @@ def evaluate(backend: Backend, task: str, episodes: int, seed_start: int, log=No
                                                  unknown[rng.integers(len(unknown))]]
         call = time.perf_counter()
         splits = [q[0] for q in queries] + ["absent", "unknown"]
-        grounded = [text if split == "paraphrase_raw" else _as_segment_grounds(text)
-                    for split, text in zip(splits, phrase_list)]
-        probabilities = backend.probabilities(image, grounded)
-        results = [extract(p, backend.postprocess) for p in probabilities]
-        # Ambiguous maps are decided as segment() decides them, except for the raw
-        # paraphrases, which measure the backend alone.
+        # Grounded as segment() grounds a one-phrase prompt (the parsed phrase's canonical
+        # wording, ambiguous maps arbitrated), except the raw paraphrases, handed to the
+        # backend as written to measure it alone.
         parsed = [None if split == "paraphrase_raw" else next(iter(vocab.parse(text)), None)
                   for split, text in zip(splits, phrase_list)]
+        grounded = [text if phrase is None else vocab.canonical(phrase) for phrase, text in zip(parsed, phrase_list)]
+        probabilities = backend.probabilities(image, grounded)
+        results = [extract(p, backend.postprocess) for p in probabilities]
         results = arbitrate(image, backend, parsed, probabilities, results)
         latencies.append(1e3 * (time.perf_counter() - call))
         scene_scores = []
