@@ -182,6 +182,71 @@ def test_fitting_objects_in_parallel_gives_the_sequential_result(trained, demos,
     assert np.array_equal(results[0]["trajectory"]["position"], results[1]["trajectory"]["position"])
 
 
+def test_baked_appearance_reproduces_the_network_between_its_texels(trained):
+    from cnfmp.core.modeling_cnfmp import BakedAppearance
+
+    model, _ = trained
+    field, colour = model.objects[0], torch.tensor([0.8, 0.3, 0.2])
+    lower, upper = torch.tensor([-0.5, -0.3]), torch.tensor([0.4, 0.6])
+    spacing = 2.0 / (model.config.field_resolution * 4)
+    baked = BakedAppearance(field, colour, lower, upper, spacing)
+    points = lower + (upper - lower) * torch.rand(3, 200, 2, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        network = field.appearance_terms(points, colour.expand(3, -1))
+    error = (baked(points) - network).abs()
+    # A few percent of the outputs' spread: x and y are not swapped, the box is where it says.
+    assert error.max() < 0.05 * (network.max() - network.min()), error.max()
+    # Outside the box the nearest edge value is read.
+    outside = torch.tensor([[[0.4 + 0.3, 0.0]]])
+    assert torch.allclose(baked(outside), baked(torch.tensor([[[0.4, 0.0]]])), atol=1e-6)
+
+
+def test_refining_on_the_baked_appearance_fits_as_well_as_the_network(trained, demos):
+    model, _ = trained
+    predictor, config = Predictor(model), model.config
+    assert config.texels_per_pixel > 0  # the default bakes
+    for index in range(len(demos)):
+        inputs = core_data.scene_inputs(demos.images[index], demos.masks[index], config.num_objects,
+                                        config.field_resolution, config.mask_dilation)
+        _, baked_mse = predictor.infer_scene(inputs, seed=index)
+        _, exact_mse = predictor.infer_scene(inputs, seed=index, exact=True)
+        for baked, exact in zip(baked_mse, exact_mse):
+            assert baked < 1.5 * exact + 1e-3, (index, baked_mse, exact_mse)
+
+
+def test_coarse_residual_interpolates_smooth_fields_and_passes_gradients():
+    from cnfmp.core.modeling_cnfmp import CoarseResidual
+
+    pixels = torch.rand(1, 150, 2, generator=torch.Generator().manual_seed(1)) * 0.4 - 0.1
+    coarse = CoarseResidual(pixels, spacing=3 * 2.0 / 64)
+    assert coarse.size < pixels.shape[1]
+    centre = torch.tensor([[0.05, -0.02], [0.1, 0.0]], requires_grad=True)
+    matrix = torch.tensor([[0.3, -0.1], [0.2, 0.5]])
+
+    def affine(offsets):
+        return offsets @ matrix + 0.01
+
+    exact = affine(pixels - centre[:, None, :])
+    # Bilinear interpolation reproduces an affine field exactly...
+    assert torch.allclose(coarse(affine, centre), exact, atol=1e-5)
+
+    def wavy(offsets):  # two octaves, like the deformation's encoding
+        return 0.05 * torch.sin(2 * torch.pi * offsets) + 0.03 * torch.cos(4 * torch.pi * offsets)
+
+    # ...and a low-frequency one closely (3 px apart at 64 px against a 16 px period).
+    error = (coarse(wavy, centre) - wavy(pixels - centre[:, None, :])).abs().max()
+    assert error < 0.01, error
+    coarse(wavy, centre).sum().backward()
+    assert centre.grad is not None and centre.grad.abs().sum() > 0
+
+
+def test_negative_fitting_grid_settings_are_refused():
+    with pytest.raises(InputError, match="texels_per_pixel must be a whole number >= 0"):
+        CnfmpConfig(**{**TINY, "texels_per_pixel": -1}).check()
+    with pytest.raises(InputError, match="residual_grid_pixels must be >= 0"):
+        CnfmpConfig(**{**TINY, "residual_grid_pixels": -2.0}).check()
+
+
 def test_describe_loads_the_model_and_names_its_slots_and_prompt_roles(trained, tmp_path):
     model, _ = trained
     save_model(model, str(tmp_path))

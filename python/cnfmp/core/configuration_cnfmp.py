@@ -135,6 +135,15 @@ class CnfmpConfig(MotionConfig):
     #: Adam steps on the simplex logits per start, and their learning rate.
     refine_steps: int = 20
     refine_learning_rate: float = 0.2
+    #: The refinement reads each object's appearance from a grid with this many samples per
+    #: field pixel along each axis, baked once per object and scene, instead of evaluating its
+    #: network at every step (most of a step's cost); 0 evaluates the network. Inference only:
+    #: training's motion refit always evaluates the network.
+    texels_per_pixel: int = 2
+    #: The refinement evaluates each object's deformation residual (low-frequency) on a grid
+    #: this many field pixels apart over the fitted pixels and interpolates it, instead of at
+    #: every pixel; 0 evaluates it at every pixel. Inference only, like `texels_per_pixel`.
+    residual_grid_pixels: float = 3.0
     #: Most pixels of an object's dilated mask used by inference.
     inference_pixels: int = 256
     #: Inference searches each object's simplex enlarged about its centre by this fraction,
@@ -157,8 +166,11 @@ class CnfmpConfig(MotionConfig):
         for name in ["learning_rate", "latent_learning_rate"]:
             if not getattr(self, name) > 0:
                 raise InputError(f"{source}: {name} must be > 0, got {getattr(self, name)!r}")
-        if not isinstance(self.task_objects, int) or self.task_objects < 0:
-            raise InputError(f"{source}: task_objects must be a whole number >= 0, got {self.task_objects!r}")
+        for name in ["task_objects", "texels_per_pixel"]:
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
+                raise InputError(f"{source}: {name} must be a whole number >= 0, got {getattr(self, name)!r}")
+        if not (isinstance(self.residual_grid_pixels, (int, float)) and self.residual_grid_pixels >= 0):
+            raise InputError(f"{source}: residual_grid_pixels must be >= 0, got {self.residual_grid_pixels!r}")
         if not 0.0 <= self.anneal_fraction <= 1.0:
             raise InputError(f"{source}: anneal_fraction must be in [0, 1], got {self.anneal_fraction!r}")
 

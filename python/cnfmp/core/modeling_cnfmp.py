@@ -87,22 +87,109 @@ class ObjectField(nn.Module):
         position follows the perspective."""
         return self.centre(latent) * torch.exp(-(latent @ self.perspective))[..., None]
 
-    def canonical(self, coords: torch.Tensor, latent: torch.Tensor) -> torch.Tensor:
+    def canonical(self, coords: torch.Tensor, latent: torch.Tensor,
+                  coarse: "CoarseResidual | None" = None) -> torch.Tensor:
         """Image coordinates (B, P, 2) -> the template's coordinates x_i (B, P, 2).
 
         The linear part and the residual are bounded (entries of A within +-LINEAR_BOUND,
         residual within +-RESIDUAL_BOUND): unbounded, the residual learns to undo the
-        translation and the template stops following the object."""
-        local = coords - self.object_centre(latent)[:, None, :]
+        translation and the template stops following the object. With `coarse` (built for
+        these `coords`), the residual is evaluated on its grid and interpolated."""
+        centre = self.object_centre(latent)
+        local = coords - centre[:, None, :]
         matrix = torch.eye(2, dtype=coords.dtype) + LINEAR_BOUND * torch.tanh(self.linear(latent).view(-1, 2, 2))
         warped = torch.einsum("bij,bpj->bpi", matrix, local)
-        residual = self.deformation(fourier_features(local, self.config.deformation_octaves), latent)
-        return warped + RESIDUAL_BOUND * torch.tanh(residual / RESIDUAL_BOUND)
 
-    def forward(self, coords, latent, colour, progress=None):
-        canonical = self.canonical(coords, latent)
-        out = self.appearance(fourier_features(canonical, self.config.appearance_octaves, progress), colour)
+        def residual_at(offsets: torch.Tensor) -> torch.Tensor:
+            raw = self.deformation(fourier_features(offsets, self.config.deformation_octaves), latent)
+            return RESIDUAL_BOUND * torch.tanh(raw / RESIDUAL_BOUND)
+
+        return warped + (residual_at(local) if coarse is None else coarse(residual_at, centre))
+
+    def appearance_terms(self, canonical: torch.Tensor, colour: torch.Tensor, progress=None) -> torch.Tensor:
+        """The appearance field at template coordinates (B, P, 2) for colours (B, 3): raw
+        outputs (B, P, 4), rgb logits then the mask logit."""
+        return self.appearance(fourier_features(canonical, self.config.appearance_octaves, progress), colour)
+
+    def forward(self, coords, latent, colour, progress=None, baked: "BakedAppearance | None" = None,
+                coarse: "CoarseResidual | None" = None):
+        canonical = self.canonical(coords, latent, coarse)
+        out = self.appearance_terms(canonical, colour, progress) if baked is None else baked(canonical)
         return torch.sigmoid(out[..., :3]), out[..., 3], canonical
+
+
+class BakedAppearance:
+    """A frozen object's appearance field for one colour, sampled once on a regular grid of
+    template coordinates and read back by bilinear interpolation.
+
+    Inference evaluates the same frozen template at slowly moving coordinates for every step
+    of every start; a lookup replaces the positional encoding and the MLP (forward and
+    backward), which are most of a refinement step's cost. Outside the grid the nearest edge
+    value is used, so the box should cover the coordinates the fit will visit.
+    """
+
+    def __init__(self, field: ObjectField, colour: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor,
+                 spacing: float):
+        """colour (3,); lower, upper (2,): corners of the box in template coordinates;
+        spacing: grid step in template coordinates (image coordinates in [-1, 1])."""
+        counts = [max(2, int(math.ceil(float(hi - lo) / spacing)) + 1) for lo, hi in zip(lower, upper)]
+        xs, ys = (torch.linspace(float(lower[k]), float(upper[k]), counts[k]) for k in range(2))
+        gy, gx = torch.meshgrid(ys, xs, indexing="ij")
+        grid = torch.stack([gx.reshape(-1), gy.reshape(-1)], dim=-1)
+        with torch.no_grad():
+            values = field.appearance_terms(grid[None], colour[None])
+        #: (1, 4, rows, columns): rows follow y, columns x, as grid_sample reads them.
+        self.texture = values.view(1, counts[1], counts[0], 4).permute(0, 3, 1, 2).contiguous()
+        self.lower, self.extent = lower, upper - lower
+
+    @property
+    def texels(self) -> int:
+        return self.texture.shape[2] * self.texture.shape[3]
+
+    def __call__(self, canonical: torch.Tensor) -> torch.Tensor:
+        """Template coordinates (B, P, 2) -> raw appearance outputs (B, P, 4)."""
+        b, p, _ = canonical.shape
+        unit = 2.0 * (canonical - self.lower) / self.extent - 1.0
+        out = F.grid_sample(self.texture, unit.reshape(1, b * p, 1, 2), mode="bilinear", padding_mode="border",
+                            align_corners=True)
+        return out.view(4, b, p).permute(1, 2, 0)
+
+
+class CoarseResidual:
+    """Evaluates an object's deformation residual on a regular grid of image points over the
+    box of a fixed set of pixels, and interpolates it bilinearly at those pixels.
+
+    The residual is low-frequency (few octaves, bounded), so a grid a few pixels apart
+    carries it; inference's refinement runs the deformation network on that grid instead of
+    on every fitted pixel at every step. Gradients flow through the interpolation.
+    """
+
+    def __init__(self, coords: torch.Tensor, spacing: float):
+        """coords (1, P, 2): the fitted pixels (image coordinates); spacing: grid step (image
+        coordinates)."""
+        lower, upper = coords[0].min(dim=0).values, coords[0].max(dim=0).values
+        extent = torch.clamp(upper - lower, min=1e-6)
+        counts = [max(2, int(math.ceil(float(extent[k]) / spacing)) + 1) for k in range(2)]
+        xs, ys = (torch.linspace(float(lower[k]), float(lower[k] + extent[k]), counts[k]) for k in range(2))
+        gy, gx = torch.meshgrid(ys, xs, indexing="ij")
+        #: (1, G, 2) grid points, rows following y.
+        self.points = torch.stack([gx.reshape(-1), gy.reshape(-1)], dim=-1)[None]
+        self.rows, self.columns = counts[1], counts[0]
+        #: Where the pixels fall on the grid, as grid_sample reads it: (1, P, 1, 2) in [-1, 1].
+        self.unit = (2.0 * (coords - lower) / extent - 1.0)[:, :, None, :]
+
+    @property
+    def size(self) -> int:
+        return self.points.shape[1]
+
+    def __call__(self, residual_at, centre: torch.Tensor) -> torch.Tensor:
+        """`residual_at` maps offsets from the object centre (B, G, 2) to residuals (B, G, 2);
+        centre (B, 2) -> residuals at the pixels (B, P, 2)."""
+        b = centre.shape[0]
+        values = residual_at(self.points - centre[:, None, :])
+        grid = values.view(b, self.rows, self.columns, 2).permute(0, 3, 1, 2)
+        out = F.grid_sample(grid, self.unit.expand(b, -1, -1, -1), mode="bilinear", align_corners=True)
+        return out[..., 0].transpose(1, 2)
 
 
 class CnfmpModel(nn.Module):

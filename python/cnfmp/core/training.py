@@ -169,7 +169,8 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     for b in range(len(data)):
         inputs = core_data.scene_inputs(demos.images[b], demos.masks[b], config.num_objects,
                                         config.field_resolution, config.mask_dilation)
-        weights.append(predictor.infer_scene(inputs, seed=config.seed + b)[0])
+        # Exact: the refit must not depend on an inference speed-up chosen after training.
+        weights.append(predictor.infer_scene(inputs, seed=config.seed + b, exact=True)[0])
     with torch.no_grad():
         latents = model.latents(torch.stack(weights), data.present)
     motion_params = list(model.gating.parameters()) + list(model.generator.parameters())
