@@ -118,6 +118,16 @@ class ObjectField(nn.Module):
         return torch.sigmoid(out[..., :3]), out[..., 3], canonical
 
 
+def regular_grid(lower: torch.Tensor, upper: torch.Tensor, spacing: float) -> tuple[torch.Tensor, int, int]:
+    """A regular grid over the box [lower, upper] (corners (2,), x then y) whose points are at
+    most `spacing` apart along each axis, at least two per axis: points (rows * columns, 2)
+    in row-major order (rows follow y), rows, columns."""
+    counts = [max(2, int(math.ceil(float(upper[k] - lower[k]) / spacing)) + 1) for k in range(2)]
+    xs, ys = (torch.linspace(float(lower[k]), float(upper[k]), counts[k]) for k in range(2))
+    gy, gx = torch.meshgrid(ys, xs, indexing="ij")
+    return torch.stack([gx.reshape(-1), gy.reshape(-1)], dim=-1), counts[1], counts[0]
+
+
 class BakedAppearance:
     """A frozen object's appearance field for one colour, sampled once on a regular grid of
     template coordinates and read back by bilinear interpolation.
@@ -132,14 +142,11 @@ class BakedAppearance:
                  spacing: float):
         """colour (3,); lower, upper (2,): corners of the box in template coordinates;
         spacing: grid step in template coordinates (image coordinates in [-1, 1])."""
-        counts = [max(2, int(math.ceil(float(hi - lo) / spacing)) + 1) for lo, hi in zip(lower, upper)]
-        xs, ys = (torch.linspace(float(lower[k]), float(upper[k]), counts[k]) for k in range(2))
-        gy, gx = torch.meshgrid(ys, xs, indexing="ij")
-        grid = torch.stack([gx.reshape(-1), gy.reshape(-1)], dim=-1)
+        grid, rows, columns = regular_grid(lower, upper, spacing)
         with torch.no_grad():
             values = field.appearance_terms(grid[None], colour[None])
         #: (1, 4, rows, columns): rows follow y, columns x, as grid_sample reads them.
-        self.texture = values.view(1, counts[1], counts[0], 4).permute(0, 3, 1, 2).contiguous()
+        self.texture = values.view(1, rows, columns, 4).permute(0, 3, 1, 2).contiguous()
         self.lower, self.extent = lower, upper - lower
 
     @property
@@ -167,14 +174,11 @@ class CoarseResidual:
     def __init__(self, coords: torch.Tensor, spacing: float):
         """coords (1, P, 2): the fitted pixels (image coordinates); spacing: grid step (image
         coordinates)."""
-        lower, upper = coords[0].min(dim=0).values, coords[0].max(dim=0).values
-        extent = torch.clamp(upper - lower, min=1e-6)
-        counts = [max(2, int(math.ceil(float(extent[k]) / spacing)) + 1) for k in range(2)]
-        xs, ys = (torch.linspace(float(lower[k]), float(lower[k] + extent[k]), counts[k]) for k in range(2))
-        gy, gx = torch.meshgrid(ys, xs, indexing="ij")
+        lower = coords[0].min(dim=0).values
+        extent = torch.clamp(coords[0].max(dim=0).values - lower, min=1e-6)
+        points, self.rows, self.columns = regular_grid(lower, lower + extent, spacing)
         #: (1, G, 2) grid points, rows following y.
-        self.points = torch.stack([gx.reshape(-1), gy.reshape(-1)], dim=-1)[None]
-        self.rows, self.columns = counts[1], counts[0]
+        self.points = points[None]
         #: Where the pixels fall on the grid, as grid_sample reads it: (1, P, 1, 2) in [-1, 1].
         self.unit = (2.0 * (coords - lower) / extent - 1.0)[:, :, None, :]
 
