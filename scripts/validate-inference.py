@@ -6,7 +6,8 @@ For each scene: render, take the coarse masks from the simulator (`--masks simul
 `cnfmp eval` does) or segment the scene's prompt with the film backend (`--masks prompt`, as
 the HTTP API does), predict with the model's config overridden by the variant, execute by
 physics.
-Prints one JSON line per variant: success rate and the predict call's p50 latency.
+Prints one JSON line per variant: success rate, the predict call's p50 latency and the mean
+scene-fit PSNR.
 
 Blind spot: training-range language_pick_place scenes never show the held-out object
 instances (colour and category combinations kept out of training), where inference is
@@ -42,7 +43,7 @@ def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: 
     original = {name: getattr(predictor.config, name) for name in variant}
     for name, value in variant.items():
         setattr(predictor.config, name, value)
-    successes, latencies = 0, []
+    successes, latencies, psnrs = 0, [], []
     try:
         for seed in range(seed_start, seed_start + scenes):
             with tempfile.TemporaryDirectory() as scratch:
@@ -60,6 +61,7 @@ def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: 
             started = time.perf_counter()
             result = json.loads(core.predict(model_dir, image, labels, names))
             latencies.append(time.perf_counter() - started)
+            psnrs.append(result["scene_psnr_db"])
             frames = result["frames"]
             arrays = [np.array([f[key] for f in frames]) for key in ("position", "orientation", "gripper")]
             try:
@@ -70,7 +72,8 @@ def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: 
         for name, value in original.items():
             setattr(predictor.config, name, value)
     return {"variant": variant, "masks": masks, "scenes": scenes, "seed_start": seed_start, "success": successes / scenes,
-            "predict_p50_ms": round(1000 * float(np.median(latencies)), 1) if latencies else None}
+            "predict_p50_ms": round(1000 * float(np.median(latencies)), 1) if latencies else None,
+            "scene_psnr_db_mean": round(float(np.mean(psnrs)), 2) if psnrs else None}
 
 
 def main() -> None:
