@@ -1,5 +1,6 @@
 """Building blocks of the coordinate networks (neural fields) shared by the core's models:
-positional encoding, FiLM-modulated MLPs, Lipschitz-bounded linear layers, the pixel grid.
+positional encoding, FiLM-modulated MLPs, Lipschitz-bounded linear layers, the pixel grid and
+regular grids over a box.
 
 Coordinates are image coordinates in [-1, 1]^2 (x right, y down).
 """
@@ -100,3 +101,13 @@ def pixel_coords(resolution: int) -> torch.Tensor:
     centres = (torch.arange(resolution, dtype=torch.float32) + 0.5) / resolution * 2.0 - 1.0
     y, x = torch.meshgrid(centres, centres, indexing="ij")
     return torch.stack([x.reshape(-1), y.reshape(-1)], dim=-1)
+
+
+def regular_grid(lower: torch.Tensor, upper: torch.Tensor, spacing: float) -> tuple[torch.Tensor, int, int]:
+    """A regular grid over the box [lower, upper] (corners (2,), x then y) whose points are at
+    most `spacing` apart along each axis, at least two per axis: points (rows * columns, 2)
+    in row-major order (rows follow y), rows, columns."""
+    counts = [max(2, int(math.ceil(float(upper[k] - lower[k]) / spacing)) + 1) for k in range(2)]
+    xs, ys = (torch.linspace(float(lower[k]), float(upper[k]), counts[k]) for k in range(2))
+    gy, gx = torch.meshgrid(ys, xs, indexing="ij")
+    return torch.stack([gx.reshape(-1), gy.reshape(-1)], dim=-1), counts[1], counts[0]

@@ -34,7 +34,8 @@ from torch import nn
 from torch.nn import functional as F
 
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
-from cnfmp.core.layers import FilmMLP, LipschitzLinear, encoded_size, fourier_features, plain_mlp
+from cnfmp.core.layers import (FilmMLP, LipschitzLinear, encoded_size, fourier_features, plain_mlp,
+                               regular_grid)
 from cnfmp.core.motion import MOTION_DIM, BasisGenerator, time_basis, time_basis_size
 from cnfmp.errors import InputError
 
@@ -118,16 +119,6 @@ class ObjectField(nn.Module):
         return torch.sigmoid(out[..., :3]), out[..., 3], canonical
 
 
-def regular_grid(lower: torch.Tensor, upper: torch.Tensor, spacing: float) -> tuple[torch.Tensor, int, int]:
-    """A regular grid over the box [lower, upper] (corners (2,), x then y) whose points are at
-    most `spacing` apart along each axis, at least two per axis: points (rows * columns, 2)
-    in row-major order (rows follow y), rows, columns."""
-    counts = [max(2, int(math.ceil(float(upper[k] - lower[k]) / spacing)) + 1) for k in range(2)]
-    xs, ys = (torch.linspace(float(lower[k]), float(upper[k]), counts[k]) for k in range(2))
-    gy, gx = torch.meshgrid(ys, xs, indexing="ij")
-    return torch.stack([gx.reshape(-1), gy.reshape(-1)], dim=-1), counts[1], counts[0]
-
-
 class BakedAppearance:
     """A frozen object's appearance field for one colour, sampled once on a regular grid of
     template coordinates and read back by bilinear interpolation.
@@ -148,10 +139,6 @@ class BakedAppearance:
         #: (1, 4, rows, columns): rows follow y, columns x, as grid_sample reads them.
         self.texture = values.view(1, rows, columns, 4).permute(0, 3, 1, 2).contiguous()
         self.lower, self.extent = lower, upper - lower
-
-    @property
-    def texels(self) -> int:
-        return self.texture.shape[2] * self.texture.shape[3]
 
     def __call__(self, canonical: torch.Tensor) -> torch.Tensor:
         """Template coordinates (B, P, 2) -> raw appearance outputs (B, P, 4)."""
