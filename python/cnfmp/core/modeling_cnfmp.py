@@ -26,7 +26,6 @@ Coordinates are image coordinates in [-1, 1]^2 (x right, y down); time is normal
 
 from __future__ import annotations
 
-
 import numpy as np
 import torch
 from torch import nn
