@@ -41,16 +41,22 @@ class JsonConfig:
     def from_file(cls, path):
         """A config from a JSON file of config fields; InputError naming the file when it is
         unreadable, not a JSON object, or has unknown or invalid fields."""
-        try:
-            with open(path, encoding="utf-8") as f:
-                values = json.load(f)
-        except OSError as err:
-            raise InputError(f"cannot read config {path}: {err.strerror}") from err
-        except ValueError as err:
-            raise InputError(f"config {path} is not valid JSON: {err}") from err
-        if not isinstance(values, dict):
-            raise InputError(f"config {path}: expected a JSON object of config fields")
-        return cls.from_dict(values, source=str(path))
+        return cls.from_dict(read_json_object(path), source=str(path))
 
 
-__all__ = ["JsonConfig"]
+def read_json_object(path) -> dict:
+    """The JSON object in the config file `path`; InputError naming the file when it is
+    unreadable or holds something else."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            values = json.load(f)
+    except OSError as err:
+        raise InputError(f"cannot read config {path}: {err.strerror}") from err
+    except ValueError as err:
+        raise InputError(f"config {path} is not valid JSON: {err}") from err
+    if not isinstance(values, dict):
+        raise InputError(f"config {path}: expected a JSON object of config fields")
+    return values
+
+
+__all__ = ["JsonConfig", "read_json_object"]

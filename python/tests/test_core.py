@@ -301,3 +301,22 @@ def test_train_writes_a_complete_model_directory_and_never_overwrites(dataset_di
         training.train(dataset_dir, str(out), None, steps=5, seed=1, progress=False)
     leftovers = [name for name in os.listdir(tmp_path) if name.startswith(".cnfmp-model-")]
     assert leftovers == []
+
+
+def test_after_training_settings_change_the_shipped_config_but_not_the_weights(dataset_dir, tmp_path):
+    settings = {"refine_steps": 3, "refine_learning_rate": 0.07}
+    for name, extra in (("plain", {}), ("after", {training.AFTER_TRAINING: settings})):
+        (tmp_path / f"{name}.json").write_text(json.dumps({**TINY, **extra}))
+        training.train(dataset_dir, str(tmp_path / name), str(tmp_path / f"{name}.json"), steps=5, seed=2,
+                       progress=False)
+    plain, after = (json.loads((tmp_path / name / CONFIG_FILE).read_text()) for name in ("plain", "after"))
+    assert (after["refine_steps"], after["refine_learning_rate"]) == (3, 0.07)
+    assert (plain["refine_steps"], plain["refine_learning_rate"]) == (TINY["refine_steps"], 0.2)
+    assert {k: v for k, v in after.items() if k not in settings} == {k: v for k, v in plain.items() if k not in settings}
+    assert (tmp_path / "after" / WEIGHTS_FILE).read_bytes() == (tmp_path / "plain" / WEIGHTS_FILE).read_bytes()
+    assert "`refine_steps` 3" in (tmp_path / "after" / "README.md").read_text()
+    # Only inference settings, refused before any training.
+    (tmp_path / "bad.json").write_text(json.dumps({**TINY, training.AFTER_TRAINING: {"steps": 3}}))
+    with pytest.raises(InputError, match="after_training may set only inference settings.*not steps"):
+        training.train(dataset_dir, str(tmp_path / "bad"), str(tmp_path / "bad.json"), progress=False)
+    assert not (tmp_path / "bad").exists()

@@ -316,7 +316,16 @@ fn write_config(work: &Path, args: &Table1Args, method: &Method, task: &str, mod
         }
     }
     if args.quick {
-        config.extend(quick_overrides(method.model_type));
+        let quick = quick_overrides(method.model_type);
+        // The shipped inference settings (set after training) must not undo --quick's effort.
+        if let Some(Value::Object(after)) = config.get_mut("after_training") {
+            for (name, value) in &quick {
+                if after.contains_key(name) {
+                    after.insert(name.clone(), value.clone());
+                }
+            }
+        }
+        config.extend(quick);
     }
     let path = work.join("configs").join(format!("{}-{task}.json", method.key));
     let text = (!config.is_empty()).then(|| serde_json::to_string_pretty(&Value::Object(config)).expect("config serialises"));

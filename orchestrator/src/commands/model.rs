@@ -35,7 +35,9 @@ pub struct TrainArgs {
     /// Model directory to create: config.json, model.safetensors, README.md (must not exist).
     #[arg(long)]
     out: PathBuf,
-    /// JSON file of config fields (see python/cnfmp/core/configuration_cnfmp.py); defaults otherwise.
+    /// JSON file of config fields (see python/cnfmp/core/configuration_cnfmp.py); defaults
+    /// otherwise. An "after_training" object in it holds inference settings the model ships
+    /// with, set after training (training's own inference uses the file's other values).
     #[arg(long)]
     config: Option<PathBuf>,
     /// Optimisation steps (overrides the config).

@@ -9,6 +9,7 @@ from the dataset and need not be set in a config file.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 from cnfmp.core.configuration_common import MotionConfig
 from cnfmp.errors import InputError
@@ -125,6 +126,12 @@ class CnfmpConfig(MotionConfig):
     latent_learning_rate: float = 1e-2
 
     # ---- inference ----
+    #: The fields below: they change how a trained model predicts, not its weights (except
+    #: through training's motion refit, which runs inference), so a config file may set them
+    #: in its ``after_training`` section (:mod:`cnfmp.core.training`).
+    INFERENCE_FIELDS: ClassVar[tuple[str, ...]] = (
+        "search_candidates", "search_pixels", "search_starts", "refine_steps", "refine_learning_rate",
+        "texels_per_pixel", "residual_grid_pixels", "inference_pixels", "simplex_margin")
     #: Candidates of the cheap search: random simplex points (plus every training
     #: demonstration's weights and the simplex vertices).
     search_candidates: int = 96

@@ -10,6 +10,7 @@ weights over the training latents, fit to the whole image by Adam.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 from cnfmp.core.configuration_common import MotionConfig
 from cnfmp.errors import InputError
@@ -58,6 +59,8 @@ class NfmpConfig(MotionConfig):
     inference_steps: int = 100
     inference_learning_rate: float = 0.1
     inference_pixels: int = 2048
+    #: The fields above, which a config file's ``after_training`` section may set.
+    INFERENCE_FIELDS: ClassVar[tuple[str, ...]] = ("inference_steps", "inference_learning_rate", "inference_pixels")
 
     model_type: str = MODEL_TYPE
 

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from cnfmp.artifacts import publish_directory
+from cnfmp.configuration import read_json_object
 from cnfmp.core import data as core_data
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core import models
@@ -25,6 +26,11 @@ from cnfmp.core.modeling_cnfmp import CnfmpModel
 from cnfmp.core.motion import LossLog, demonstration_targets, motion_loss, time_basis
 from cnfmp.errors import InputError
 
+#: Key of a config file's section of inference settings that the model ships with, set after
+#: training: training's motion refit runs inference with the values outside it, so a
+#: setting chosen on validation scenes after a model was trained changes its predictions
+#: without changing its weights, and the file still reproduces the shipped model.
+AFTER_TRAINING = "after_training"
 
 def fit_config_to_data(config: CnfmpConfig, demos: core_data.Demonstrations) -> CnfmpConfig:
     """The "(from data)" fields of `config` filled in from the demonstrations."""
@@ -206,13 +212,15 @@ def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps:
     """
     if os.path.exists(out_dir):
         raise InputError(f"{out_dir} already exists; models are never overwritten, choose a new --out")
-    if model_type is None and config_path is not None:
-        model_type = _config_file_model_type(config_path)
-    kind = models.model_type(model_type or models.DEFAULT_MODEL_TYPE)
-    config = kind.config_class() if config_path is None else kind.config_class.from_file(config_path)
+    values = {} if config_path is None else read_json_object(config_path)
+    after_training = values.pop(AFTER_TRAINING, {})
+    model_type = model_type or values.get("model_type") or models.DEFAULT_MODEL_TYPE
+    kind = models.model_type(str(model_type))
+    config = kind.config_class.from_dict(values, source=str(config_path or "config"))
     overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
     config = dataclasses.replace(config, **overrides)
     config.check()
+    _shipped_config(config, after_training, str(config_path))  # refuse a bad section before training
     demos = core_data.load_demonstrations(dataset_dir)
     if getattr(config, "task_objects", 0):
         demos = core_data.keep_task_objects(demos, config.task_objects)
@@ -221,28 +229,35 @@ def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps:
         log(f"training {kind.name} on {len(demos)} {demos.task} demonstrations from {dataset_dir}, "
             f"{config.steps} steps, seed {config.seed}")
     model, summary = kind.train(demos, config, log)
+    if after_training:
+        model.config = _shipped_config(model.config, after_training, str(config_path))
 
     def fill(staging: str) -> None:
         models.save_model(model, staging)
         with open(os.path.join(staging, models.CARD_FILE), "w", encoding="utf-8") as f:
-            f.write(model_card(kind, model.config, summary, dataset_dir, demos, command))
+            f.write(model_card(kind, model.config, summary, dataset_dir, demos, command, after_training))
 
     publish_directory(out_dir, fill)
     return json.dumps({"out": out_dir, "task": demos.task, "model_type": kind.name, **summary})
 
 
-def _config_file_model_type(path: str) -> str | None:
-    """The model_type a config file names, if any (the file is validated when loaded)."""
-    try:
-        with open(path, encoding="utf-8") as f:
-            values = json.load(f)
-    except (OSError, ValueError):
-        return None  # from_file reports what is wrong with it
-    return values.get("model_type") if isinstance(values, dict) else None
+def _shipped_config(config, after_training, source: str):
+    """`config` with the inference settings of a config file's AFTER_TRAINING section; an
+    InputError for anything there that is not an inference setting of the model type."""
+    if not isinstance(after_training, dict):
+        raise InputError(f"{source}: {AFTER_TRAINING} must be a JSON object of inference settings")
+    allowed = getattr(type(config), "INFERENCE_FIELDS", ())
+    other = sorted(set(after_training) - set(allowed))
+    if other:
+        raise InputError(f"{source}: {AFTER_TRAINING} may set only inference settings "
+                         f"({', '.join(allowed) or 'this model type has none'}), not {', '.join(other)}")
+    shipped = dataclasses.replace(config, **after_training)
+    shipped.check(source)
+    return shipped
 
 
 def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, demos: core_data.Demonstrations,
-               command: str) -> str:
+               command: str, after_training: dict | None = None) -> str:
     seeds = [s for s in demos.seeds if s >= 0]
     seed_text = f"{min(seeds)}..{max(seeds)}" if seeds else "not recorded"
     losses = ", ".join(f"{name.replace('_', ' ')} {value:.5f}" for name, value in summary["final_losses"].items())
@@ -250,6 +265,9 @@ def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, 
                if isinstance(config, CnfmpConfig) else "")
     extra = (f" (plus {len(demos) * config.num_objects * config.num_endpoints} demonstration simplex weights)"
              if isinstance(config, CnfmpConfig) else "")
+    shipped = (f"| set after training | {', '.join(f'`{k}` {v}' for k, v in after_training.items())} "
+               "(inference only; training's motion refit ran with the config file's other values) |\n"
+               if after_training else "")
     return f"""# cnfmp model: {config.task} ({kind.name})
 
 {kind.summary}, trained by `cnfmp train --model-type {kind.name}`.
@@ -264,7 +282,7 @@ def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, 
 | parameters | {summary['parameters']:,}{extra} |
 | final losses | {losses} (normalised units) |
 | trajectory | {config.duration_s:.1f} s at {config.output_fps:g} Hz |
-
+{shipped}
 Command:
 
 ```
