@@ -240,6 +240,25 @@ def test_coarse_residual_interpolates_smooth_fields_and_passes_gradients():
     assert centre.grad is not None and centre.grad.abs().sum() > 0
 
 
+def test_full_turns_let_the_template_turn_all_the_way_round():
+    from cnfmp.core.modeling_cnfmp import ObjectField
+
+    coords = torch.rand(1, 20, 2, generator=torch.Generator().manual_seed(2)) * 2 - 1
+    latent = torch.zeros(1, TINY["latent_dim"])
+    for full_turns in (False, True):
+        field = ObjectField(CnfmpConfig(**TINY, full_turns=full_turns))
+        with torch.no_grad():
+            field.linear.weight.zero_()
+            field.linear.bias.copy_(torch.tensor([-2.0, 0.0, 0.0, 0.0]))  # a half turn (full turns)
+            centre = field.object_centre(latent)
+            canonical = field.canonical(coords, latent)
+        half_turn = -(coords - centre[:, None, :])
+        if full_turns:
+            assert torch.allclose(canonical, half_turn, atol=1e-5)
+        else:  # the bounded map cannot mirror the template
+            assert (canonical - half_turn).abs().max() > 0.1
+
+
 def test_negative_fitting_grid_settings_are_refused():
     with pytest.raises(InputError, match="texels_per_pixel must be a whole number >= 0"):
         CnfmpConfig(**{**TINY, "texels_per_pixel": -1}).check()

@@ -57,6 +57,11 @@ class CnfmpConfig(MotionConfig):
     background_octaves: int = 4
     #: Fraction of the training steps over which the appearance octaves are switched on.
     anneal_fraction: float = 0.4
+    #: Whether the linear part of each object's deformation is a similarity (turn and scale,
+    #: unbounded and linear in the latent) times a bounded stretch, instead of a bounded map
+    #: (turns up to ~50 deg, scale within ~+-50%, saturating): the template may then turn by
+    #: any angle and scale without saturating. The incline model uses it (docs/benchmarks.md).
+    full_turns: bool = False
     #: Weight of the Lipschitz penalty (product of the learned per-layer bounds) on the
     #: latent-to-deformation networks.
     lipschitz_weight: float = 1e-6

@@ -42,6 +42,7 @@ from cnfmp.errors import InputError
 #: 0.15 is about 5 px at 64 px).
 LINEAR_BOUND = 0.8
 RESIDUAL_BOUND = 0.15
+STRETCH_BOUND = 0.3
 
 
 class ObjectField(nn.Module):
@@ -50,7 +51,8 @@ class ObjectField(nn.Module):
     Canonical coordinates ``x_i = (I + A(z)) (x - c(z)) + r(x - c(z) | z)``, i.e.
     ``Delta(x | z) = x - x_i``: c(z) is the object's centre in the image (linear in z, so a
     convex combination of latents moves the object along the line between their centres),
-    A(z) a small linear map for turns and scale (linear in z), r a low-frequency FiLM
+    A(z) a bounded linear map for turns and scale (or, with `full_turns`, a similarity linear
+    in z times a bounded stretch), r a low-frequency FiLM
     residual for what neither captures (slopes, heights, perspective). The appearance F and
     mask logit depend on x_i and the object's observed colour only, never on z (paper eq. 2):
     every difference between scenes has to be explained by moving the template, which is
@@ -96,7 +98,16 @@ class ObjectField(nn.Module):
         these `coords`), the residual is evaluated on its grid and interpolated."""
         centre = self.object_centre(latent)
         local = coords - centre[:, None, :]
-        matrix = torch.eye(2, dtype=coords.dtype) + LINEAR_BOUND * torch.tanh(self.linear(latent).view(-1, 2, 2))
+        raw = self.linear(latent)
+        if self.config.full_turns:
+            # A similarity (any turn, any scale) linear in z, times a bounded stretch.
+            u, v, a, b = raw.unbind(dim=-1)
+            similarity = torch.stack([1.0 + u, -v, v, 1.0 + u], dim=-1).view(-1, 2, 2)
+            a, b = STRETCH_BOUND * torch.tanh(a), STRETCH_BOUND * torch.tanh(b)
+            stretch = torch.stack([1.0 + a, b, b, 1.0 - a], dim=-1).view(-1, 2, 2)
+            matrix = similarity @ stretch
+        else:
+            matrix = torch.eye(2, dtype=coords.dtype) + LINEAR_BOUND * torch.tanh(raw.view(-1, 2, 2))
         warped = torch.einsum("bij,bpj->bpi", matrix, local)
 
         def residual_at(offsets: torch.Tensor) -> torch.Tensor:
