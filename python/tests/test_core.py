@@ -95,6 +95,26 @@ def test_gating_weights_sum_to_one_and_vary_in_time(trained):
     torch.testing.assert_close(ablation.gates(torch.linspace(0, 1, 5)), torch.full((5, 2), 0.5))
 
 
+def test_gating_shares_its_weight_among_the_present_objects_only(trained):
+    model, _ = trained
+    t = torch.linspace(0, 1, 7)
+    present = torch.tensor([[True, True], [True, False]])
+    w = model.gates(t, present)
+    assert w.shape == (2, 7, 2)
+    torch.testing.assert_close(w[0], model.gates(t))  # every object there: the plain gating
+    torch.testing.assert_close(w[1], torch.tensor([[1.0, 0.0]]).expand(7, -1))
+    # The motion of a scene without object 2 ignores whatever latent stands in its slot.
+    latents = torch.randn(1, 2, model.config.latent_dim)
+    other = latents.clone()
+    other[0, 1] += 1.0
+    alone = torch.tensor([[True, False]])
+    torch.testing.assert_close(model.motion(t, latents, alone), model.motion(t, other, alone))
+    # Without it, the absent slot keeps its share of the weight.
+    keeping = CnfmpModel(dataclasses.replace(model.config, gate_present_only=False), num_demos=1)
+    torch.testing.assert_close(keeping.gates(t, present), keeping.gates(t))
+    assert bool((keeping.gates(t)[:, 1] > 0).all())
+
+
 def test_rotations_round_trip_through_the_tangent_space():
     rng = np.random.default_rng(0)
     reference = geometry.quat_down(0.3)

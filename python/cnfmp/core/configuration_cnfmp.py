@@ -105,6 +105,12 @@ class CnfmpConfig(MotionConfig):
     #: Whether the temporal gating is learned; False gives the ablation with constant, equal
     #: weights (z(t) = mean of the object latents).
     temporal_gating: bool = True
+    #: Whether the gating shares its weight among the objects present in the scene only: an
+    #: absent slot's weight is zero and the present ones are renormalised. Otherwise an absent
+    #: slot keeps its weight with its learned "absent" latent, and one time profile has to
+    #: serve scenes with and without the object (cup stacking's third cup: the motion then
+    #: cannot both reach that cup and hold still where it is missing).
+    gate_present_only: bool = True
     #: Whether the trajectory loss also moves the latents (joint shaping, as in the paper);
     #: False trains the motion on the latents the scene alone explains, so nothing the image
     #: cannot show steers the motion.

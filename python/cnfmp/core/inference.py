@@ -205,7 +205,7 @@ class Predictor:
         inferred = time.perf_counter()
         with torch.no_grad():
             latents = self.model.latents(weights[None], present[None])
-            outputs = self.model.motion(self.times, latents)[0].numpy().astype(np.float64)
+            outputs = self.model.motion(self.times, latents, present[None])[0].numpy().astype(np.float64)
         trajectory = decode_trajectory(outputs, c)
         decoded = time.perf_counter()
         fit = self.scene_fit(latents, colour, present, rgb, inputs["masks"])

@@ -267,20 +267,25 @@ class CnfmpModel(nn.Module):
         return m * object_rgb + (1.0 - m) * bg_rgb
 
     # ---- motion ----
-    def gates(self, t: torch.Tensor) -> torch.Tensor:
+    def gates(self, t: torch.Tensor, present: torch.Tensor | None = None) -> torch.Tensor:
         """Temporal gating weights w(t): (T,) -> (T, N), rows summing to one (constant and
-        equal without temporal gating)."""
+        equal without temporal gating). With presence (B, N) bool and `gate_present_only`,
+        where a scene lacks an object: (B, T, N), the absent objects at zero and the present
+        ones sharing one."""
         scores = self.gating(time_basis(t, self.config))
         if not self.config.temporal_gating:
             scores = torch.zeros_like(scores)
-        return torch.softmax(scores, dim=-1)
+        if present is None or not self.config.gate_present_only or bool(present.all()):
+            return torch.softmax(scores, dim=-1)
+        return torch.softmax(torch.where(present[:, None, :], scores[None], float("-inf")), dim=-1)
 
-    def motion(self, t: torch.Tensor, latents: torch.Tensor) -> torch.Tensor:
-        """Normalised times (T,) and object latents (B, N, D) -> generator outputs (B, T, 7):
-        normalised position, rotation vector (rad), gripper."""
+    def motion(self, t: torch.Tensor, latents: torch.Tensor, present: torch.Tensor | None = None) -> torch.Tensor:
+        """Normalised times (T,), object latents (B, N, D) and their presence (B, N) bool ->
+        generator outputs (B, T, 7): normalised position, rotation vector (rad), gripper."""
         if self.training and not self.config.motion_shapes_latents:
             latents = latents.detach()
-        z_t = torch.einsum("tn,bnd->btd", self.gates(t), latents)  # (B, T, D)
+        gates = self.gates(t, present)
+        z_t = torch.einsum("tn,bnd->btd" if gates.dim() == 2 else "btn,bnd->btd", gates, latents)  # (B, T, D)
         return self.generator(time_basis(t, self.config), z_t)
 
     def lipschitz_penalty(self) -> torch.Tensor:

@@ -139,7 +139,8 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
         label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
         mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
         frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
-        motion = motion_loss(model.config, model.motion(data.times[frames], latents), data.targets[bt][:, frames])
+        motion = motion_loss(model.config, model.motion(data.times[frames], latents, present),
+                             data.targets[bt][:, frames])
         lipschitz = model.lipschitz_penalty()
         centre_err = ((model.object_centres(latents) - data.centre[bt]) ** 2).sum(dim=-1)
         centre_prior = (centre_err * present).sum() / present.sum().clamp(min=1)
@@ -187,7 +188,7 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     steps = config.motion_refit_steps
     schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 0.5 * (1 + np.cos(np.pi * min(step / steps, 1.0))))
     for step in range(steps):
-        loss = motion_loss(model.config, model.motion(data.times, latents), data.targets)
+        loss = motion_loss(model.config, model.motion(data.times, latents, data.present), data.targets)
         penalty = config.generator_weight_decay * model.generator.sensitivity()
         optimiser.zero_grad(set_to_none=True)
         (loss + penalty).backward()
