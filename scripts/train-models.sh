@@ -2,8 +2,9 @@
 # Reproduces the shipped core models under models/: for each task, a training dataset of the
 # paper's low-data size (wall 10, incline 20, cup 20, cube 30 demonstrations; 30 for
 # language_pick_place, which the paper does not table; training seeds from 0) and one seeded
-# `cnfmp train` run with the default configuration, or configs/core/<task>.json where
-# it exists (its "after_training" inference settings end up in the model's config.json).
+# `cnfmp train` run (seed 0 unless the recipe names another) with the default configuration,
+# or configs/core/<task>.json where it exists (its "after_training" inference settings end
+# up in the model's config.json).
 # Two tasks train at a time (one torch thread each). Usage: scripts/train-models.sh [TASK ...]
 # Environment: MODELS_DIR (default models), DATASETS_DIR (default a temporary directory).
 set -euo pipefail
@@ -25,7 +26,8 @@ train_one() {
     # A task-specific config where one is needed (language_pick_place: distractors are background).
     local config=()
     [[ -f configs/core/$task.json ]] && config=(--config "configs/core/$task.json")
-    target/release/cnfmp train --dataset "$datasets/$task-$n" --out "$models/$task" --seed 0 "${config[@]}" \
+    # The seed is the config's (0 unless the recipe names the training seed it was chosen with).
+    target/release/cnfmp train --dataset "$datasets/$task-$n" --out "$models/$task" "${config[@]}" \
         2> >(sed "s/^/[$task] /" >&2)
 }
 running=0
