@@ -9,6 +9,7 @@ the coarse masks it was given.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 
 import numpy as np
@@ -33,6 +34,8 @@ def scene_fit_picture(model_dir: str, seed: int) -> np.ndarray:
         image, labels = sim.render_rgb(), sim.render_labels()
     finally:
         sim.close()
+    if model.config.task_objects:  # distractors are background to this model, as in predict
+        labels = np.where(labels > model.config.task_objects, 0, labels).astype(labels.dtype)
     result = model.predict(image, labels)
     n = model.config.num_objects
     owner = result["learned_masks"]  # slot index, n = background
@@ -58,9 +61,16 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     runtime.configure(1)
     os.makedirs(args.out_dir, exist_ok=True)
+    from cnfmp.core.models import model_types
+
     for name in sorted(os.listdir(args.models_dir)):
         model_dir = os.path.join(args.models_dir, name)
-        if os.path.isfile(os.path.join(model_dir, "config.json")):
+        config = os.path.join(model_dir, "config.json")
+        if not os.path.isfile(config):
+            continue
+        with open(config, encoding="utf-8") as f:
+            kind = json.load(f).get("model_type")
+        if kind in model_types():  # core models only: models/ also holds the segmenter's checkpoint
             out = os.path.join(args.out_dir, f"{name}.png")
             Image.fromarray(scene_fit_picture(model_dir, args.seed)).save(out)
             print(out)
