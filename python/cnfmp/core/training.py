@@ -32,6 +32,7 @@ from cnfmp.errors import InputError
 #: without changing its weights, and the file still reproduces the shipped model.
 AFTER_TRAINING = "after_training"
 
+
 def fit_config_to_data(config: CnfmpConfig, demos: core_data.Demonstrations) -> CnfmpConfig:
     """The "(from data)" fields of `config` filled in from the demonstrations."""
     slots = max(len(objs) for objs in demos.objects)
