@@ -14,6 +14,7 @@ import numpy as np
 
 from cnfmp.core import models, training
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
+from cnfmp.core.data import task_object_labels
 from cnfmp.errors import InputError
 from cnfmp.images import decode_image, decode_labels
 
@@ -68,7 +69,7 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
     c = model.config
     object_centric = isinstance(c, CnfmpConfig)
     if object_centric and c.task_objects:  # distractors are background to this model
-        labels, objects = np.where(labels > c.task_objects, 0, labels).astype(np.uint8), list(objects)[:c.task_objects]
+        labels, objects = task_object_labels(labels, c.task_objects), list(objects)[:c.task_objects]
     if object_centric and len(objects) > c.num_objects:
         raise InputError(f"{len(objects)} objects given but the model ({c.task}) has {c.num_objects} object slot(s): "
                          f"{', '.join(c.object_names)}")

@@ -86,10 +86,16 @@ def load_demonstrations(dataset_dir: str) -> Demonstrations:
                           trajectories, seeds, prompts)
 
 
+def task_object_labels(labels: np.ndarray, count: int) -> np.ndarray:
+    """A label map (any shape, uint8) with only its first `count` objects; later labels
+    (distractors) become background (0)."""
+    return np.where(labels > count, 0, labels).astype(np.uint8)
+
+
 def keep_task_objects(demos: Demonstrations, count: int) -> Demonstrations:
     """`demos` with only the first `count` labelled objects; later labels become background."""
-    masks = np.where(demos.masks > count, 0, demos.masks).astype(np.uint8)
-    return dataclasses.replace(demos, masks=masks, objects=[names[:count] for names in demos.objects])
+    return dataclasses.replace(demos, masks=task_object_labels(demos.masks, count),
+                               objects=[names[:count] for names in demos.objects])
 
 
 def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolution: int, dilation: int) -> dict:

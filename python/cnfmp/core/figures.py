@@ -23,6 +23,7 @@ def scene_fit_picture(model_dir: str, seed: int) -> np.ndarray:
     import cv2
 
     from cnfmp.core.api import predictor
+    from cnfmp.core.data import task_object_labels
     from cnfmp.sim import engine
     from cnfmp.sim.task import get_task
 
@@ -35,7 +36,7 @@ def scene_fit_picture(model_dir: str, seed: int) -> np.ndarray:
     finally:
         sim.close()
     if model.config.task_objects:  # distractors are background to this model, as in predict
-        labels = np.where(labels > model.config.task_objects, 0, labels).astype(labels.dtype)
+        labels = task_object_labels(labels, model.config.task_objects)
     result = model.predict(image, labels)
     n = model.config.num_objects
     owner = result["learned_masks"]  # slot index, n = background

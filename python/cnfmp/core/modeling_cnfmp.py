@@ -275,6 +275,8 @@ class CnfmpModel(nn.Module):
         scores = self.gating(time_basis(t, self.config))
         if not self.config.temporal_gating:
             scores = torch.zeros_like(scores)
+        # Every object present: the plain (T, N) weights, so models whose slots are never empty
+        # compute bit for bit as before the option existed.
         if present is None or not self.config.gate_present_only or bool(present.all()):
             return torch.softmax(scores, dim=-1)
         return torch.softmax(torch.where(present[:, None, :], scores[None], float("-inf")), dim=-1)
