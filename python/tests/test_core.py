@@ -85,6 +85,25 @@ def test_a_seeded_training_run_is_bitwise_reproducible(demos):
     assert not all(torch.equal(first[name], other[name]) for name in first), "the seed has no effect"
 
 
+def test_several_draws_go_on_with_the_one_whose_motion_fits_best(demos):
+    """Draw 0 is the plain seeded run; the draw with the lowest trajectory loss at the choice
+    is the one trained on and returned, and the summary says which it was."""
+    config = CnfmpConfig(**{**TINY, "motion_refit_steps": 0}, steps=20, seed=5)
+    single_model, single = training.train_model(demos, config)
+    model, summary = training.train_model(demos, dataclasses.replace(config, draws=3, draw_fraction=1.0))
+    choice = summary["draws"]
+    losses = choice["motion_mse"]
+    assert choice["count"] == 3 and choice["steps"] == 20 and len(set(losses)) == 3
+    assert losses[0] == round(single["final_losses"]["motion_mse"], 6)
+    assert choice["chosen"] == int(np.argmin(losses))
+    same = all(torch.equal(a, b) for a, b in zip(model.state_dict().values(), single_model.state_dict().values()))
+    assert same == (choice["chosen"] == 0)
+    assert "draws" not in single
+    for bad in ({"draws": 0}, {"draw_fraction": 1.5}):
+        with pytest.raises(InputError, match=next(iter(bad))):
+            dataclasses.replace(config, **bad).check()
+
+
 def test_gating_weights_sum_to_one_and_vary_in_time(trained):
     model, _ = trained
     w = model.gates(torch.linspace(0, 1, 50))
@@ -200,6 +219,9 @@ def test_fitting_objects_in_parallel_gives_the_sequential_result(trained, demos,
     assert np.array_equal(results[0]["weights"], results[1]["weights"])
     assert results[0]["object_mse"] == results[1]["object_mse"]
     assert np.array_equal(results[0]["trajectory"]["position"], results[1]["trajectory"]["position"])
+    # The scene fit renders the objects on the same threads.
+    assert np.array_equal(results[0]["reconstruction"], results[1]["reconstruction"])
+    assert results[0]["mask_iou"] == results[1]["mask_iou"]
 
 
 def test_baked_appearance_reproduces_the_network_between_its_texels(trained):

@@ -44,6 +44,22 @@ pub struct TrainReport {
     pub final_losses: std::collections::BTreeMap<String, f64>,
     /// Network and latent parameters (without the per-demonstration simplex weights).
     pub parameters: u64,
+    /// How the run chose among several initialisations (cnfmp's `draws` > 1), else absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub draws: Option<DrawChoice>,
+}
+
+/// The choice among a training run's initialisations ("draws").
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct DrawChoice {
+    /// Initialisations trained.
+    pub count: u32,
+    /// Steps each trained before the choice.
+    pub steps: u64,
+    /// The one that went on (0-based; draw 0 is the seed's plain run).
+    pub chosen: u32,
+    /// Each draw's trajectory loss at the choice (normalised units).
+    pub motion_mse: Vec<f64>,
 }
 
 /// Per object slot: what inference found.

@@ -30,7 +30,7 @@ mod tests;
 
 pub use calls::{ArrayRoundTrip, DoctorCheck, DoctorReport, PythonInfo};
 pub use dataset::{DatasetCheck, DatasetEpisodes, DatasetInspection, Hdf5Demo, Hdf5Listing, InspectedEpisode, SkippedEpisode, StagedWriteReport};
-pub use core::{ModelDescription, ModelInfo, ObjectEstimate, Prediction, TrainReport, TrainRequest};
+pub use core::{DrawChoice, ModelDescription, ModelInfo, ObjectEstimate, Prediction, TrainReport, TrainRequest};
 pub use error::{BridgeError, PythonException, TRACEBACK_FRAMES};
 pub use interpreter::BridgeConfig;
 pub use segment::{SegmentDocument, SegmentRequest, SegmentedObject, Segmentation, SegmenterTrainRequest, SlotAssignment};

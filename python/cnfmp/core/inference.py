@@ -218,7 +218,8 @@ class Predictor:
         """Whole-image reconstruction PSNR and per-object IoU of the learned masks (argmax of
         the competition) with the coarse masks, at field resolution."""
         with torch.no_grad():
-            scene = self.model.scene(self.coords[None], latents, colour[None], present[None])
+            scene = self.model.scene(self.coords[None], latents, colour[None], present[None],
+                                     map_objects=_fitting_pool().map)
         recon = scene["rgb"][0]
         owner = scene["masks"][0].argmax(dim=0).numpy()
         ious = []

@@ -238,16 +238,18 @@ class CnfmpModel(nn.Module):
         out = self.background(fourier_features(coords, self.config.background_octaves, progress))
         return torch.sigmoid(out[..., :3]), out[..., 3]
 
-    def scene(self, coords, latents, colours, present, progress=None) -> dict:
-        """Renders the scene at `coords` (B, P, 2).
+    def scene(self, coords, latents, colours, present, progress=None, map_objects=map) -> dict:
+        """Renders the scene at `coords` (B, P, 2). `map_objects` maps the per-object rendering
+        over the slots (inference passes a thread pool's map to render objects in parallel).
 
         Returns ``{"rgb": (B, P, 3) composite, "object_rgb": (B, N, P, 3), "logits":
         (B, N + 1, P) object logits then background (absent objects at -inf), "masks":
         (B, N + 1, P) softmax of the logits, "canonical": (B, N, P, 2) template coordinates}``.
         """
         rgbs, logits, canonicals = [], [], []
-        for slot, field in enumerate(self.objects):
-            rgb, logit, canonical = field(coords, latents[:, slot], colours[:, slot], progress)
+        rendered = map_objects(lambda slot: self.objects[slot](coords, latents[:, slot], colours[:, slot], progress),
+                               range(len(self.objects)))
+        for slot, (rgb, logit, canonical) in enumerate(rendered):
             rgbs.append(rgb)
             logits.append(torch.where(present[:, slot, None], logit, torch.full_like(logit, -1e4)))
             canonicals.append(canonical)

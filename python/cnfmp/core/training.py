@@ -12,6 +12,7 @@ import dataclasses
 import json
 import os
 import sys
+import time
 
 import numpy as np
 import torch
@@ -103,65 +104,105 @@ def image_losses(model: CnfmpModel, scene: dict, target: torch.Tensor, present: 
     return composite, local / count.clamp(min=1)
 
 
+class _Draw:
+    """One initialisation of a training run: its model, optimiser, learning-rate schedule,
+    sampling generator and loss history."""
+
+    def __init__(self, config: CnfmpConfig, data: TrainingSet, index: int, log=None):
+        # Draw 0 is seeded exactly as a plain run, so one draw trains bit for bit as before.
+        torch.manual_seed(config.seed if index == 0 else int(np.random.SeedSequence([config.seed, index]).generate_state(1)[0]))
+        self.rng = np.random.default_rng(config.seed if index == 0 else [config.seed, index])
+        self.index, self.step = index, 0
+        self.model = model = CnfmpModel(config, num_demos=len(data))
+        with torch.no_grad():  # the generator starts at the demonstrations' mean motion
+            basis = time_basis(data.times, config)
+            model.generator.mean.copy_(torch.linalg.lstsq(basis, data.targets.mean(dim=0)).solution)
+        latent_params = [model.endpoints, model.absent, model.demo_logits]
+        net_params = [p for name, p in model.named_parameters() if name not in ("endpoints", "absent", "demo_logits")]
+        self.optimiser = torch.optim.Adam([{"params": net_params, "lr": config.learning_rate},
+                                           {"params": latent_params, "lr": config.latent_learning_rate}])
+        self.schedule = torch.optim.lr_scheduler.LambdaLR(
+            self.optimiser, lambda step: 0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * min(step / config.steps, 1.0))))
+        self.losses = LossLog(config.steps, ["image", "object", "motion"], log)
+
+    def train(self, data: TrainingSet, until: int) -> None:
+        """Runs the training steps up to (not including) step `until`."""
+        model, config, rng = self.model, self.model.config, self.rng
+        batch_size = min(config.batch_demos, len(data))
+        for step in range(self.step, until):
+            progress = min(1.0, step / max(1.0, config.anneal_fraction * config.steps))
+            batch = rng.choice(len(data), size=batch_size, replace=False)
+            pixels = data.sample_pixels(rng, batch, config.pixels_per_object, config.uniform_pixels)
+            bt = torch.from_numpy(batch)
+            coords = data.coords[pixels]
+            target = torch.gather(data.rgb[bt], 1, pixels[..., None].expand(-1, -1, 3))
+            present = data.present[bt]
+            weights = torch.softmax(model.demo_logits[bt], dim=-1)
+            latents = model.latents(weights, present)
+            entropy = -(weights * torch.log(weights + 1e-9)).sum(dim=-1).mean()
+            scene = model.scene(coords, latents, data.colour[bt], present, progress)
+            composite, local = image_losses(model, scene, target, present, config.pixels_per_object)
+            # Logits are ordered objects then background; labels 0 = background, k = object k.
+            label = torch.gather(data.labels[bt], 1, pixels)
+            label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
+            mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
+            frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
+            motion = motion_loss(model.config, model.motion(data.times[frames], latents, present),
+                                 data.targets[bt][:, frames])
+            lipschitz = model.lipschitz_penalty()
+            centre_err = ((model.object_centres(latents) - data.centre[bt]) ** 2).sum(dim=-1)
+            centre_prior = (centre_err * present).sum() / present.sum().clamp(min=1)
+            weight_prior = (model.weight_spread(weights) * present).sum() / present.sum().clamp(min=1)
+            loss = (config.image_weight * (composite + local) + motion + config.mask_prior_weight * mask_prior
+                    + config.centre_prior_weight * centre_prior + config.weight_prior_weight * weight_prior
+                    + config.generator_weight_decay * model.generator.sensitivity()
+                    + config.lipschitz_weight * lipschitz - config.simplex_entropy_weight * entropy)
+            self.optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            self.optimiser.step()
+            self.schedule.step()
+            self.losses.record(step, [composite.item(), local.item(), motion.item()],
+                               f"lipschitz {lipschitz.item():.3g}")
+        self.step = max(self.step, until)
+
+    def motion_loss(self) -> float:
+        """The trajectory loss over the last logged window of steps."""
+        return self.losses.final()["motion"]
+
+
 def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) -> tuple[CnfmpModel, dict]:
     """Trains a model on `demos`; returns it with a summary of the run (final losses, wall
-    time). `log(line)` receives progress lines (every ~5% of the steps)."""
+    time, and with several draws each draw's trajectory loss at the choice). `log(line)`
+    receives progress lines (every ~5% of the steps)."""
+    started = time.monotonic()
     config = fit_config_to_data(config, demos)
-    torch.manual_seed(config.seed)
-    rng = np.random.default_rng(config.seed)
     data = TrainingSet(demos, config)
-    model = CnfmpModel(config, num_demos=len(data))
-    with torch.no_grad():  # the generator starts at the demonstrations' mean motion
-        basis = time_basis(data.times, config)
-        model.generator.mean.copy_(torch.linalg.lstsq(basis, data.targets.mean(dim=0)).solution)
-    latent_params = [model.endpoints, model.absent, model.demo_logits]
-    net_params = [p for name, p in model.named_parameters() if name not in ("endpoints", "absent", "demo_logits")]
-    optimiser = torch.optim.Adam([{"params": net_params, "lr": config.learning_rate},
-                                  {"params": latent_params, "lr": config.latent_learning_rate}])
-    schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimiser, lambda step: 0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * min(step / config.steps, 1.0))))
-    batch_size = min(config.batch_demos, len(data))
-    losses = LossLog(config.steps, ["image", "object", "motion"], log)
-    for step in range(config.steps):
-        progress = min(1.0, step / max(1.0, config.anneal_fraction * config.steps))
-        batch = rng.choice(len(data), size=batch_size, replace=False)
-        pixels = data.sample_pixels(rng, batch, config.pixels_per_object, config.uniform_pixels)
-        bt = torch.from_numpy(batch)
-        coords = data.coords[pixels]
-        target = torch.gather(data.rgb[bt], 1, pixels[..., None].expand(-1, -1, 3))
-        present = data.present[bt]
-        weights = torch.softmax(model.demo_logits[bt], dim=-1)
-        latents = model.latents(weights, present)
-        entropy = -(weights * torch.log(weights + 1e-9)).sum(dim=-1).mean()
-        scene = model.scene(coords, latents, data.colour[bt], present, progress)
-        composite, local = image_losses(model, scene, target, present, config.pixels_per_object)
-        # Logits are ordered objects then background; labels 0 = background, k = object k.
-        label = torch.gather(data.labels[bt], 1, pixels)
-        label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
-        mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
-        frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
-        motion = motion_loss(model.config, model.motion(data.times[frames], latents, present),
-                             data.targets[bt][:, frames])
-        lipschitz = model.lipschitz_penalty()
-        centre_err = ((model.object_centres(latents) - data.centre[bt]) ** 2).sum(dim=-1)
-        centre_prior = (centre_err * present).sum() / present.sum().clamp(min=1)
-        weight_prior = (model.weight_spread(weights) * present).sum() / present.sum().clamp(min=1)
-        loss = (config.image_weight * (composite + local) + motion + config.mask_prior_weight * mask_prior
-                + config.centre_prior_weight * centre_prior + config.weight_prior_weight * weight_prior
-                + config.generator_weight_decay * model.generator.sensitivity()
-                + config.lipschitz_weight * lipschitz - config.simplex_entropy_weight * entropy)
-        optimiser.zero_grad(set_to_none=True)
-        loss.backward()
-        optimiser.step()
-        schedule.step()
-        losses.record(step, [composite.item(), local.item(), motion.item()], f"lipschitz {lipschitz.item():.3g}")
+    choice = {}
+    if config.draws == 1:
+        run = _Draw(config, data, 0, log)
+    else:
+        until = max(1, round(config.draw_fraction * config.steps))
+        draws = []
+        for index in range(config.draws):
+            prefix = f"draw {index + 1}/{config.draws}: "
+            draws.append(_Draw(config, data, index, log and (lambda line, p=prefix: log(p + line))))
+            draws[-1].train(data, until)
+        run = min(draws, key=_Draw.motion_loss)
+        choice = {"draws": {"count": config.draws, "steps": until, "chosen": run.index,
+                            "motion_mse": [round(d.motion_loss(), 6) for d in draws]}}
+        if log:
+            log(f"draw {run.index + 1} of {config.draws} goes on (trajectory loss at step {until}: "
+                + ", ".join(f"{d.motion_loss():.5f}" for d in draws) + ")")
+        run.losses.log = log
+    run.train(data, config.steps)
+    model = run.model
     model.eval()
-    final = losses.final()
+    final = run.losses.final()
     if config.motion_refit_steps:  # the motion the model ships with is the refit one
         final["motion"] = refit_motion(model, data, demos, log)
-    summary = {"steps": config.steps, "demos": len(data), "seconds": losses.seconds(),
+    summary = {"steps": config.steps, "demos": len(data), "seconds": round(time.monotonic() - started, 1),
                "final_losses": {f"{name}_mse": value for name, value in final.items()},
-               "parameters": model.parameter_count()}
+               "parameters": model.parameter_count(), **choice}
     return model, summary
 
 
@@ -267,6 +308,10 @@ def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, 
                if isinstance(config, CnfmpConfig) else "")
     extra = (f" (plus {len(demos) * config.num_objects * config.num_endpoints} demonstration simplex weights)"
              if isinstance(config, CnfmpConfig) else "")
+    choice = summary.get("draws")
+    draws = (f"| draws | {choice['count']} initialisations trained {choice['steps']} steps each; draw "
+             f"{choice['chosen'] + 1} went on (trajectory loss then: "
+             f"{', '.join(f'{v:.5f}' for v in choice['motion_mse'])}) |\n" if choice else "")
     shipped = (f"| set after training | {', '.join(f'`{k}` {v}' for k, v in after_training.items())} "
                "(inference only; training's motion refit ran with the config file's other values) |\n"
                if after_training else "")
@@ -282,7 +327,7 @@ def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, 
 | steps | {summary['steps']} (seed {config.seed}) |
 | wall time | {summary['seconds']:.0f} s, {torch.get_num_threads()} torch thread(s) |
 | parameters | {summary['parameters']:,}{extra} |
-| final losses | {losses} (normalised units) |
+{draws}| final losses | {losses} (normalised units) |
 | trajectory | {config.duration_s:.1f} s at {config.output_fps:g} Hz |
 {shipped}
 Command:
