@@ -110,8 +110,9 @@ class _Draw:
 
     def __init__(self, config: CnfmpConfig, data: TrainingSet, index: int, log=None):
         # Draw 0 is seeded exactly as a plain run, so one draw trains bit for bit as before.
-        torch.manual_seed(config.seed if index == 0 else int(np.random.SeedSequence([config.seed, index]).generate_state(1)[0]))
-        self.rng = np.random.default_rng(config.seed if index == 0 else [config.seed, index])
+        entropy = config.seed if index == 0 else [config.seed, index]
+        torch.manual_seed(int(np.random.SeedSequence(entropy).generate_state(1)[0]) if index else config.seed)
+        self.rng = np.random.default_rng(entropy)
         self.index, self.step = index, 0
         self.model = model = CnfmpModel(config, num_demos=len(data))
         with torch.no_grad():  # the generator starts at the demonstrations' mean motion
