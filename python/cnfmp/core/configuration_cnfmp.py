@@ -135,12 +135,13 @@ class CnfmpConfig(MotionConfig):
     #: Adam learning rate of the networks and of the endpoint and demonstration latents.
     learning_rate: float = 2e-3
     latent_learning_rate: float = 1e-2
-    #: Independent initialisations ("draws") trained side by side for the first
+    #: Independent initialisations ("draws"), each trained in turn for the first
     #: `draw_fraction` of the steps; the one whose trajectory loss is lowest over its last
     #: logged window goes on alone. Some initialisations settle where the motion cannot fit
-    #: the demonstrations (cup stacking: about one run in three, its trajectory loss ten times
-    #: the others' by a third of the steps, and it then fails nearly every scene). Draw 0 is the
-    #: seed's single run, so 1 draw trains exactly as a plain seeded run.
+    #: the demonstrations (cup stacking: about one run in three; its trajectory loss is two to
+    #: three times the others' after a third of the steps, ten times at the end, and the model
+    #: fails nearly every scene). Draw 0 is the seed's single run, so 1 draw trains exactly as
+    #: a plain seeded run.
     draws: int = 1
     #: Fraction of `steps` each draw trains before the choice (the choice costs
     #: (draws - 1) x this fraction of a run in extra time).
