@@ -109,10 +109,12 @@ class _Draw:
     sampling generator and loss history."""
 
     def __init__(self, config: CnfmpConfig, data: TrainingSet, index: int, log=None):
-        # Draw 0 is seeded exactly as a plain run, so one draw trains bit for bit as before.
-        entropy = config.seed if index == 0 else [config.seed, index]
-        torch.manual_seed(int(np.random.SeedSequence(entropy).generate_state(1)[0]) if index else config.seed)
-        self.rng = np.random.default_rng(entropy)
+        if index == 0:  # seeded exactly as a plain run, so one draw trains bit for bit as before
+            torch.manual_seed(config.seed)
+            self.rng = np.random.default_rng(config.seed)
+        else:
+            torch.manual_seed(int(np.random.SeedSequence([config.seed, index]).generate_state(1)[0]))
+            self.rng = np.random.default_rng([config.seed, index])
         self.index, self.step = index, 0
         self.model = model = CnfmpModel(config, num_demos=len(data))
         with torch.no_grad():  # the generator starts at the demonstrations' mean motion
@@ -188,12 +190,13 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
             prefix = f"draw {index + 1}/{config.draws}: "
             draws.append(_Draw(config, data, index, log and (lambda line, p=prefix: log(p + line))))
             draws[-1].train(data, until)
-        run = min(draws, key=_Draw.motion_loss)
+        losses = [d.motion_loss() for d in draws]
+        run = draws[int(np.argmin(losses))]
         choice = {"draws": {"count": config.draws, "steps": until, "chosen": run.index,
-                            "motion_mse": [round(d.motion_loss(), 6) for d in draws]}}
+                            "motion_mse": [round(loss, 6) for loss in losses]}}
         if log:
             log(f"draw {run.index + 1} of {config.draws} goes on (trajectory loss at step {until}: "
-                + ", ".join(f"{d.motion_loss():.5f}" for d in draws) + ")")
+                + ", ".join(f"{loss:.5f}" for loss in losses) + ")")
         run.losses.log = log
     run.train(data, config.steps)
     model = run.model
