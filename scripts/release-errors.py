@@ -32,14 +32,13 @@ from cnfmp import geometry  # noqa: E402
 from cnfmp.core import api as core  # noqa: E402
 from cnfmp.errors import InputError  # noqa: E402
 from cnfmp.sim import api as sim  # noqa: E402
-
-#: Gripper command above which the expert counts as open (its commands are 0 or >= 0.7).
-OPEN = 0.3
-
+from cnfmp.sim.engine import CLOSED_BELOW  # noqa: E402
+from cnfmp.sim.task import TRAIN_SEEDS  # noqa: E402
 
 def release_frames(gripper: np.ndarray) -> list[int]:
-    """Frames (indices) where the gripper command crosses from closed to open."""
-    return [i for i in range(1, len(gripper)) if gripper[i - 1] < OPEN <= gripper[i]]
+    """Frames (indices) where the gripper command crosses from closed to open, as the
+    simulator's judge counts a release."""
+    return [i for i in range(1, len(gripper)) if gripper[i - 1] < CLOSED_BELOW <= gripper[i]]
 
 
 def finger_axis(quat: np.ndarray) -> np.ndarray:
@@ -94,8 +93,9 @@ def main() -> None:
     args = parser.parse_args()
     if args.scenes < 1:
         parser.error("--scenes must be at least 1")
-    if args.seed_start < 0 or args.seed_start + args.scenes > 1_000_000:
-        parser.error("scenes must stay in the training range (seeds below 1000000); held-out scenes are for cnfmp eval")
+    if args.seed_start < TRAIN_SEEDS.start or args.seed_start + args.scenes > TRAIN_SEEDS.stop:
+        parser.error(f"scenes must stay in the training range (seeds {TRAIN_SEEDS.start}..{TRAIN_SEEDS.stop - 1}); "
+                     "held-out scenes are for cnfmp eval")
     task = args.task or core.predictor(args.model).config.task
     rows = []
     for seed in range(args.seed_start, args.seed_start + args.scenes):

@@ -35,6 +35,7 @@ from cnfmp.core import api as core  # noqa: E402
 from cnfmp.errors import InputError  # noqa: E402
 from cnfmp.segmenter import api as segmenter  # noqa: E402
 from cnfmp.sim import api as sim  # noqa: E402
+from cnfmp.sim.task import TRAIN_SEEDS  # noqa: E402
 
 
 def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: int, masks: str,
@@ -88,8 +89,9 @@ def main() -> None:
                         help="film segmenter directory for --masks prompt (default: models/segmenter)")
     parser.add_argument("variants", nargs="+", help='JSON objects of config overrides, e.g. \'{"search_starts": 2}\'')
     args = parser.parse_args()
-    if args.seed_start < 0 or args.seed_start + args.scenes > 1_000_000:
-        parser.error("validation scenes must stay in the training range (seeds below 1000000)")
+    if args.seed_start < TRAIN_SEEDS.start or args.seed_start + args.scenes > TRAIN_SEEDS.stop:
+        parser.error(f"validation scenes must stay in the training range (seeds {TRAIN_SEEDS.start}.."
+                     f"{TRAIN_SEEDS.stop - 1})")
     task = args.task or core.predictor(args.model).config.task
     for variant in args.variants:
         print(json.dumps(validate(args.model, task, json.loads(variant), args.scenes, args.seed_start, args.masks,

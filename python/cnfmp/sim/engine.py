@@ -22,6 +22,8 @@ from cnfmp.sim.task import Scene
 SUBSTEPS = round(1.0 / (sc.CONTROL_HZ * sc.TIMESTEP))
 #: Time the last command is held before judging (s).
 SETTLE_S = 1.0
+#: Gripper commands below this count as closed; a release is the step a closed command opens.
+CLOSED_BELOW = 0.5
 #: Grasp-weld activation: the object must touch both finger pads.
 _PADS = ("gripper_left_pad", "gripper_right_pad")
 
@@ -42,7 +44,7 @@ class ExecutionLog:
         final_speed: name -> linear speed (m/s) after settling.
         final_finger_contacts: object names touching a finger pad after settling.
         release_step: the first control step at which the gripper command went from closed
-            (< 0.5) to open (None if it never did); release_quat: the measured gripper
+            (< CLOSED_BELOW) to open (None if it never did); release_quat: the measured gripper
             orientation at that step.
     """
 
@@ -163,7 +165,7 @@ class Simulation:
             d.mocap_pos[self._mocap] = position[j]
             d.mocap_quat[self._mocap] = quat[j]
             d.ctrl[:] = command[j] * sc.FINGER_TRAVEL
-            closed = command[j] < 0.5
+            closed = command[j] < CLOSED_BELOW
             if k < steps and was_closed and not closed and release_step is None:
                 release_step, release_quat = k, d.xquat[self._gripper_body].copy()
             was_closed = closed if k < steps else was_closed
