@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 
 import numpy as np
 
@@ -29,11 +28,9 @@ from cnfmp import runtime
 runtime.configure(threads=1)  # before torch loads: one thread, deterministic kernels, as the CLI runs
 
 from cnfmp import geometry  # noqa: E402
-from cnfmp.core import api as core  # noqa: E402
-from cnfmp.errors import InputError  # noqa: E402
+from cnfmp.core import api as core, trial  # noqa: E402
 from cnfmp.sim import api as sim  # noqa: E402
 from cnfmp.sim.engine import CLOSED_BELOW  # noqa: E402
-from cnfmp.sim.task import TRAIN_SEEDS  # noqa: E402
 
 def release_frames(gripper: np.ndarray) -> list[int]:
     """Frames (indices) where the gripper command crosses from closed to open, as the
@@ -49,14 +46,9 @@ def finger_axis(quat: np.ndarray) -> np.ndarray:
 def scene_errors(model_dir: str, task: str, seed: int) -> dict:
     """Predicts and executes one scene; returns its verdict and per-release errors: horizontal
     position (cm), height (cm, predicted minus expert) and finger axis (deg)."""
-    with tempfile.TemporaryDirectory() as scratch:
-        info = json.loads(sim.render(task, seed, f"{scratch}/scene"))
-        with open(f"{scratch}/scene/image.png", "rb") as file:
-            image = file.read()
-        with open(f"{scratch}/scene/masks.png", "rb") as file:
-            labels = file.read()
-    frames = json.loads(core.predict(model_dir, image, labels, info["objects"]))["frames"]
-    position, orientation, gripper = (np.array([f[key] for f in frames]) for key in ("position", "orientation", "gripper"))
+    image, labels, info = trial.render(task, seed)
+    position, orientation, gripper = trial.trajectory_arrays(json.loads(core.predict(model_dir, image, labels,
+                                                                                      info["objects"])))
     expert = sim.expert(task, seed)
     shared = min(len(position), len(expert["position"]))
     errors = {"xy_cm": [], "z_cm": [], "axis_deg": []}
@@ -65,11 +57,7 @@ def scene_errors(model_dir: str, task: str, seed: int) -> dict:
         errors["z_cm"].append(float((position[i, 2] - expert["position"][i, 2]) * 100))
         cosine = float(np.clip(finger_axis(orientation[i]) @ finger_axis(expert["orientation"][i]), -1.0, 1.0))
         errors["axis_deg"].append(float(np.degrees(np.arccos(cosine))))
-    try:
-        verdict = json.loads(sim.execute(task, seed, position, orientation, gripper))
-        success, reasons = verdict["success"], verdict["reasons"]
-    except InputError as error:  # left the workspace: a failed scene
-        success, reasons = False, [str(error)]
+    success, reasons = trial.execute(task, seed, position, orientation, gripper)
     return {"seed": seed, "success": success, "reasons": reasons, **errors}
 
 
@@ -91,11 +79,9 @@ def main() -> None:
                         help="first scene seed (0.. are the demonstrations' scenes; default 500000)")
     parser.add_argument("--scenes", type=int, default=20)
     args = parser.parse_args()
-    if args.scenes < 1:
-        parser.error("--scenes must be at least 1")
-    if args.seed_start < TRAIN_SEEDS.start or args.seed_start + args.scenes > TRAIN_SEEDS.stop:
-        parser.error(f"scenes must stay in the training range (seeds {TRAIN_SEEDS.start}..{TRAIN_SEEDS.stop - 1}); "
-                     "held-out scenes are for cnfmp eval")
+    problem = trial.validation_range_error(args.seed_start, args.scenes)
+    if problem:
+        parser.error(problem)
     task = args.task or core.predictor(args.model).config.task
     rows = []
     for seed in range(args.seed_start, args.seed_start + args.scenes):

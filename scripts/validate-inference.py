@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 import time
 
 import numpy as np
@@ -31,11 +30,9 @@ from cnfmp import runtime
 
 runtime.configure(threads=1)  # before torch loads: one thread, deterministic kernels, as the CLI runs
 
-from cnfmp.core import api as core  # noqa: E402
+from cnfmp.core import api as core, trial  # noqa: E402
 from cnfmp.errors import InputError  # noqa: E402
 from cnfmp.segmenter import api as segmenter  # noqa: E402
-from cnfmp.sim import api as sim  # noqa: E402
-from cnfmp.sim.task import TRAIN_SEEDS  # noqa: E402
 
 
 def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: int, masks: str,
@@ -47,12 +44,8 @@ def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: 
     successes, latencies, psnrs = 0, [], []
     try:
         for seed in range(seed_start, seed_start + scenes):
-            with tempfile.TemporaryDirectory() as scratch:
-                info = json.loads(sim.render(task, seed, f"{scratch}/scene"))
-                with open(f"{scratch}/scene/image.png", "rb") as file:
-                    image = file.read()
-                with open(f"{scratch}/scene/masks.png", "rb") as file:
-                    labels, names = file.read(), info["objects"]
+            image, labels, info = trial.render(task, seed)
+            names = info["objects"]
             if masks == "prompt":
                 try:
                     found = segmenter.segment(image, info["prompt"], "film", segmenter_weights, task, pictures=False)
@@ -63,12 +56,7 @@ def validate(model_dir: str, task: str, variant: dict, scenes: int, seed_start: 
             result = json.loads(core.predict(model_dir, image, labels, names))
             latencies.append(time.perf_counter() - started)
             psnrs.append(result["scene_psnr_db"])
-            frames = result["frames"]
-            arrays = [np.array([f[key] for f in frames]) for key in ("position", "orientation", "gripper")]
-            try:
-                successes += json.loads(sim.execute(task, seed, *arrays))["success"]
-            except InputError:
-                pass  # left the workspace: a failed scene
+            successes += trial.execute(task, seed, *trial.trajectory_arrays(result))[0]
     finally:
         for name, value in original.items():
             setattr(predictor.config, name, value)
@@ -89,9 +77,9 @@ def main() -> None:
                         help="film segmenter directory for --masks prompt (default: models/segmenter)")
     parser.add_argument("variants", nargs="+", help='JSON objects of config overrides, e.g. \'{"search_starts": 2}\'')
     args = parser.parse_args()
-    if args.seed_start < TRAIN_SEEDS.start or args.seed_start + args.scenes > TRAIN_SEEDS.stop:
-        parser.error(f"validation scenes must stay in the training range (seeds {TRAIN_SEEDS.start}.."
-                     f"{TRAIN_SEEDS.stop - 1})")
+    problem = trial.validation_range_error(args.seed_start, args.scenes)
+    if problem:
+        parser.error(problem)
     task = args.task or core.predictor(args.model).config.task
     for variant in args.variants:
         print(json.dumps(validate(args.model, task, json.loads(variant), args.scenes, args.seed_start, args.masks,
