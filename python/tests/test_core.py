@@ -301,6 +301,26 @@ def test_full_turns_let_the_template_turn_all_the_way_round():
             assert (canonical - half_turn).abs().max() > 0.1
 
 
+def test_anchored_centres_follow_the_mask_and_carry_the_position_to_the_motion():
+    torch.manual_seed(0)
+    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, anchored_centres=True), num_demos=2).eval()
+    latents = torch.randn(1, 2, TINY["latent_dim"])
+    anchors = torch.tensor([[[0.2, -0.1], [-0.4, 0.3]]])
+    moved = anchors + torch.tensor([[[0.1, 0.05], [0.0, 0.0]]])
+    t = torch.linspace(0, 1, 20)
+    both, second_only = torch.ones(1, 2, dtype=torch.bool), torch.tensor([[False, True]])
+    with torch.no_grad():
+        # The template centre moves with its mask's centroid, by as much.
+        torch.testing.assert_close(model.object_centres(latents, moved) - model.object_centres(latents, anchors),
+                                   moved - anchors)
+        # The motion reads the centroid of a present object, not that of an absent one.
+        assert (model.motion(t, latents, both, moved) - model.motion(t, latents, both, anchors)).abs().max() > 1e-3
+        torch.testing.assert_close(model.motion(t, latents, second_only, moved),
+                                   model.motion(t, latents, second_only, anchors), rtol=0, atol=0)
+        with pytest.raises(ValueError, match="centroids"):
+            model.motion(t, latents, both)
+
+
 def test_negative_fitting_grid_settings_are_refused():
     with pytest.raises(InputError, match="texels_per_pixel must be a whole number >= 0"):
         CnfmpConfig(**{**TINY, "texels_per_pixel": -1}).check()

@@ -84,6 +84,13 @@ class CnfmpConfig(MotionConfig):
     #: in inference. The coarse masks roughly localise the objects (paper §II); this term
     #: anchors the translation part of every latent to that location.
     centre_prior_weight: float = 1.0
+    #: Whether each object's position comes from its coarse mask instead of its latent: the
+    #: template centre is the mask's centroid plus a small latent-dependent offset, and the
+    #: motion reads the centroid (through a learned projective map from image to table) next
+    #: to the latent. The latent is then left to the object's shape and pose, so a new scene
+    #: that pairs one demonstration's position with another's pose needs no latent that
+    #: training never tied to a motion. (The centre prior then keeps the offset small.)
+    anchored_centres: bool = False
 
     #: Weight of a pull of each object's simplex weights towards the simplex centre (squared
     #: distance), in training and in inference alike. Directions of the latent that the image

@@ -77,11 +77,12 @@ class Predictor:
         c = logits.shape[0]
         weights = self.weights_of(logits)
         latent = self.model.object_latent(slot, weights)
+        anchor = centre.expand(c, -1)
         rgb, logit, _ = self.model.objects[slot](coords.expand(c, -1, -1), latent, colour.expand(c, -1),
-                                                 baked=baked, coarse=coarse)
+                                                 baked=baked, coarse=coarse, anchor=anchor)
         image = self.model.expert_image(rgb, logit, bg_rgb, bg_logit)
         mse = ((image - target) ** 2).mean(dim=(1, 2))
-        centre_err = ((self.model.objects[slot].object_centre(latent) - centre) ** 2).sum(dim=-1)
+        centre_err = ((self.model.objects[slot].object_centre(latent, anchor) - centre) ** 2).sum(dim=-1)
         return (mse + self.config.centre_prior_weight * centre_err
                 + self.config.weight_prior_weight * self.model.weight_spread(weights), mse)
 
@@ -125,11 +126,12 @@ class Predictor:
         BAKE_MARGIN for the way the refinement moves them, at `texels_per_pixel` texels per
         field pixel. (The template's own support is no bound: far from what training saw,
         the appearance network may still claim pixels.)"""
-        coords, colour = fitting[0], fitting[1]
+        coords, colour, centre = fitting[0], fitting[1], fitting[5]
         field = self.model.objects[slot]
+        s = starts.shape[0]
         with torch.no_grad():
-            seen = field.canonical(coords.expand(starts.shape[0], -1, -1),
-                                   self.model.object_latent(slot, self.weights_of(starts))).reshape(-1, 2)
+            seen = field.canonical(coords.expand(s, -1, -1), self.model.object_latent(slot, self.weights_of(starts)),
+                                   anchor=centre.expand(s, -1)).reshape(-1, 2)
         spacing = 2.0 / (self.config.field_resolution * self.config.texels_per_pixel)
         return BakedAppearance(field, colour[0], seen.min(dim=0).values - BAKE_MARGIN,
                                seen.max(dim=0).values + BAKE_MARGIN, spacing)
@@ -205,21 +207,23 @@ class Predictor:
         inferred = time.perf_counter()
         with torch.no_grad():
             latents = self.model.latents(weights[None], present[None])
-            outputs = self.model.motion(self.times, latents, present[None])[0].numpy().astype(np.float64)
+            anchors = torch.from_numpy(inputs["centre"])[None]
+            outputs = self.model.motion(self.times, latents, present[None], anchors)[0].numpy().astype(np.float64)
         trajectory = decode_trajectory(outputs, c)
         decoded = time.perf_counter()
-        fit = self.scene_fit(latents, colour, present, rgb, inputs["masks"])
+        fit = self.scene_fit(latents, colour, present, rgb, inputs["masks"], anchors)
         return {"trajectory": trajectory, "weights": weights.numpy(), "present": inputs["present"],
                 "object_mse": mse, "object_psnr_db": [None if m is None else psnr_db(m) for m in mse],
                 **fit,
                 "seconds": {"infer": inferred - started, "decode": decoded - inferred}}
 
-    def scene_fit(self, latents, colour, present, rgb, coarse_masks) -> dict:
+    def scene_fit(self, latents, colour, present, rgb, coarse_masks, anchors) -> dict:
         """Whole-image reconstruction PSNR and per-object IoU of the learned masks (argmax of
-        the competition) with the coarse masks, at field resolution."""
+        the competition) with the coarse masks, at field resolution (`anchors` (1, N, 2): the
+        mask centroids)."""
         with torch.no_grad():
             scene = self.model.scene(self.coords[None], latents, colour[None], present[None],
-                                     map_objects=_fitting_pool().map)
+                                     map_objects=_fitting_pool().map, anchors=anchors)
         recon = scene["rgb"][0]
         owner = scene["masks"][0].argmax(dim=0).numpy()
         ious = []

@@ -66,7 +66,8 @@ class ObjectField(nn.Module):
         super().__init__()
         self.config = config
         self.centre = LipschitzLinear(config.latent_dim, 2)
-        self.perspective = nn.Parameter(torch.zeros(config.latent_dim))
+        if not config.anchored_centres:  # anchored, the centre is the mask's: no perspective to learn
+            self.perspective = nn.Parameter(torch.zeros(config.latent_dim))
         self.linear = nn.Linear(config.latent_dim, 4)
         self.deformation = FilmMLP(encoded_size(2, config.deformation_octaves), config.latent_dim, config.field_width,
                                    config.field_layers, 2, lipschitz=True)
@@ -78,25 +79,33 @@ class ObjectField(nn.Module):
             self.deformation.out.weight.zero_()
             self.deformation.out.bias.zero_()
             self.centre.linear.bias.zero_()
+            if config.anchored_centres:  # an offset from the centroid: start near none
+                self.centre.linear.weight.mul_(0.1)
 
-    def object_centre(self, latent: torch.Tensor) -> torch.Tensor:
-        """The object's centre c(z) in image coordinates: (..., D) -> (..., 2).
+    def object_centre(self, latent: torch.Tensor, anchor: torch.Tensor | None = None) -> torch.Tensor:
+        """The object's centre c(z) in image coordinates: latent (..., D) and the centroid of
+        its coarse mask `anchor` (..., 2) -> (..., 2).
 
         A projective function of the latent, ``c(z) = (W z + b) exp(-g . z)``, the way a
         camera sees positions on the table: the latent can then hold the object's position
         linearly in the world, which is what the (affine) motion needs, while the image
-        position follows the perspective."""
+        position follows the perspective. With `anchored_centres`, ``c = anchor + W z + b``:
+        the latent only shifts the template off the centroid (a tall object's centroid is not
+        where its base is)."""
+        if self.config.anchored_centres:
+            return anchor + self.centre(latent)
         return self.centre(latent) * torch.exp(-(latent @ self.perspective))[..., None]
 
     def canonical(self, coords: torch.Tensor, latent: torch.Tensor,
-                  coarse: "CoarseResidual | None" = None) -> torch.Tensor:
+                  coarse: "CoarseResidual | None" = None, anchor: torch.Tensor | None = None) -> torch.Tensor:
         """Image coordinates (B, P, 2) -> the template's coordinates x_i (B, P, 2).
 
         The linear part and the residual are bounded (entries of A within +-LINEAR_BOUND,
         residual within +-RESIDUAL_BOUND): unbounded, the residual learns to undo the
         translation and the template stops following the object. With `coarse` (built for
-        these `coords`), the residual is evaluated on its grid and interpolated."""
-        centre = self.object_centre(latent)
+        these `coords`), the residual is evaluated on its grid and interpolated. `anchor` (B, 2):
+        the mask centroids, for `anchored_centres`."""
+        centre = self.object_centre(latent, anchor)
         local = coords - centre[:, None, :]
         raw = self.linear(latent)
         if self.config.full_turns:
@@ -122,8 +131,8 @@ class ObjectField(nn.Module):
         return self.appearance(fourier_features(canonical, self.config.appearance_octaves, progress), colour)
 
     def forward(self, coords, latent, colour, progress=None, baked: "BakedAppearance | None" = None,
-                coarse: "CoarseResidual | None" = None):
-        canonical = self.canonical(coords, latent, coarse)
+                coarse: "CoarseResidual | None" = None, anchor: torch.Tensor | None = None):
+        canonical = self.canonical(coords, latent, coarse, anchor)
         out = self.appearance_terms(canonical, colour, progress) if baked is None else baked(canonical)
         return torch.sigmoid(out[..., :3]), out[..., 3], canonical
 
@@ -212,6 +221,12 @@ class CnfmpModel(nn.Module):
         time_in = time_basis_size(config)
         self.gating = plain_mlp(time_in, config.gating_width, 2, n)
         self.generator = BasisGenerator(time_in, d, MOTION_DIM)
+        if config.anchored_centres:
+            #: The inverse camera map's denominator: a centroid (u, v) is on the table at a
+            #: position affine in ``(u, v, 1) / (1 + h . (u, v))``.
+            self.table_projection = nn.Parameter(torch.zeros(2))
+            #: How each object's table position enters its latent for the motion: (N, D, 3).
+            self.position_embedding = nn.Parameter(0.5 * torch.randn(n, d, 3))
 
     # ---- latents ----
     def latents(self, weights: torch.Tensor, present: torch.Tensor) -> torch.Tensor:
@@ -219,9 +234,25 @@ class CnfmpModel(nn.Module):
         z = torch.einsum("bnk,nkd->bnd", weights, self.endpoints)
         return torch.where(present[..., None], z, self.absent[None].expand_as(z))
 
-    def object_centres(self, latents: torch.Tensor) -> torch.Tensor:
-        """Object latents (B, N, D) -> template centres c(z_i) (B, N, 2), image coordinates."""
-        return torch.stack([field.object_centre(latents[:, k]) for k, field in enumerate(self.objects)], dim=1)
+    def object_centres(self, latents: torch.Tensor, anchors: torch.Tensor | None = None) -> torch.Tensor:
+        """Object latents (B, N, D) and mask centroids (B, N, 2) -> template centres c(z_i)
+        (B, N, 2), image coordinates."""
+        return torch.stack([field.object_centre(latents[:, k], None if anchors is None else anchors[:, k])
+                            for k, field in enumerate(self.objects)], dim=1)
+
+    def motion_latents(self, latents: torch.Tensor, anchors: torch.Tensor | None, present: torch.Tensor | None):
+        """The latents the motion reads (B, N, D): with `anchored_centres`, each present
+        object's latent plus its embedded table position, from its mask centroid (B, N, 2)."""
+        if not self.config.anchored_centres:
+            return latents
+        if anchors is None:
+            raise ValueError("a model with anchored_centres needs the mask centroids")
+        homogeneous = torch.cat([anchors, torch.ones_like(anchors[..., :1])], dim=-1)
+        table = homogeneous / (1.0 + anchors @ self.table_projection)[..., None]
+        position = torch.einsum("ndk,bnk->bnd", self.position_embedding, table)
+        if present is not None:
+            position = position * present[..., None]
+        return latents + position
 
     @staticmethod
     def weight_spread(weights: torch.Tensor) -> torch.Tensor:
@@ -238,16 +269,18 @@ class CnfmpModel(nn.Module):
         out = self.background(fourier_features(coords, self.config.background_octaves, progress))
         return torch.sigmoid(out[..., :3]), out[..., 3]
 
-    def scene(self, coords, latents, colours, present, progress=None, map_objects=map) -> dict:
+    def scene(self, coords, latents, colours, present, progress=None, map_objects=map, anchors=None) -> dict:
         """Renders the scene at `coords` (B, P, 2). `map_objects` maps the per-object rendering
-        over the slots (inference passes a thread pool's map to render objects in parallel).
+        over the slots (inference passes a thread pool's map to render objects in parallel);
+        `anchors` (B, N, 2): the mask centroids, for `anchored_centres`.
 
         Returns ``{"rgb": (B, P, 3) composite, "object_rgb": (B, N, P, 3), "logits":
         (B, N + 1, P) object logits then background (absent objects at -inf), "masks":
         (B, N + 1, P) softmax of the logits, "canonical": (B, N, P, 2) template coordinates}``.
         """
         rgbs, logits, canonicals = [], [], []
-        rendered = map_objects(lambda slot: self.objects[slot](coords, latents[:, slot], colours[:, slot], progress),
+        rendered = map_objects(lambda slot: self.objects[slot](coords, latents[:, slot], colours[:, slot], progress,
+                                                               anchor=None if anchors is None else anchors[:, slot]),
                                range(len(self.objects)))
         for slot, (rgb, logit, canonical) in enumerate(rendered):
             rgbs.append(rgb)
@@ -283,14 +316,22 @@ class CnfmpModel(nn.Module):
             return torch.softmax(scores, dim=-1)
         return torch.softmax(torch.where(present[:, None, :], scores[None], float("-inf")), dim=-1)
 
-    def motion(self, t: torch.Tensor, latents: torch.Tensor, present: torch.Tensor | None = None) -> torch.Tensor:
-        """Normalised times (T,), object latents (B, N, D) and their presence (B, N) bool ->
-        generator outputs (B, T, 7): normalised position, rotation vector (rad), gripper."""
+    def motion(self, t: torch.Tensor, latents: torch.Tensor, present: torch.Tensor | None = None,
+               anchors: torch.Tensor | None = None) -> torch.Tensor:
+        """Normalised times (T,), object latents (B, N, D), their presence (B, N) bool and,
+        for `anchored_centres`, their mask centroids (B, N, 2) -> generator outputs (B, T, 7):
+        normalised position, rotation vector (rad), gripper."""
         if self.training and not self.config.motion_shapes_latents:
             latents = latents.detach()
+        latents = self.motion_latents(latents, anchors, present)
         gates = self.gates(t, present)
         z_t = torch.einsum("tn,bnd->btd" if gates.dim() == 2 else "btn,bnd->btd", gates, latents)  # (B, T, D)
         return self.generator(time_basis(t, self.config), z_t)
+
+    def motion_parameters(self) -> list[nn.Parameter]:
+        """The parameters that map object latents (and positions) to the motion."""
+        extra = [self.table_projection, self.position_embedding] if self.config.anchored_centres else []
+        return list(self.gating.parameters()) + list(self.generator.parameters()) + extra
 
     def lipschitz_penalty(self) -> torch.Tensor:
         bounds = [field.deformation.lipschitz_bound() * field.centre.bound() for field in self.objects]

@@ -143,17 +143,18 @@ class _Draw:
             weights = torch.softmax(model.demo_logits[bt], dim=-1)
             latents = model.latents(weights, present)
             entropy = -(weights * torch.log(weights + 1e-9)).sum(dim=-1).mean()
-            scene = model.scene(coords, latents, data.colour[bt], present, progress)
+            anchors = data.centre[bt]
+            scene = model.scene(coords, latents, data.colour[bt], present, progress, anchors=anchors)
             composite, local = image_losses(model, scene, target, present, config.pixels_per_object)
             # Logits are ordered objects then background; labels 0 = background, k = object k.
             label = torch.gather(data.labels[bt], 1, pixels)
             label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
             mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
             frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
-            motion = motion_loss(model.config, model.motion(data.times[frames], latents, present),
+            motion = motion_loss(model.config, model.motion(data.times[frames], latents, present, anchors),
                                  data.targets[bt][:, frames])
             lipschitz = model.lipschitz_penalty()
-            centre_err = ((model.object_centres(latents) - data.centre[bt]) ** 2).sum(dim=-1)
+            centre_err = ((model.object_centres(latents, anchors) - anchors) ** 2).sum(dim=-1)
             centre_prior = (centre_err * present).sum() / present.sum().clamp(min=1)
             weight_prior = (model.weight_spread(weights) * present).sum() / present.sum().clamp(min=1)
             loss = (config.image_weight * (composite + local) + motion + config.mask_prior_weight * mask_prior
@@ -226,7 +227,7 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
         weights.append(predictor.infer_scene(inputs, seed=config.seed + b, exact=True)[0])
     with torch.no_grad():
         latents = model.latents(torch.stack(weights), data.present)
-    motion_params = list(model.gating.parameters()) + list(model.generator.parameters())
+    motion_params = model.motion_parameters()
     for p in motion_params:
         p.requires_grad_(True)
     model.train()
@@ -234,7 +235,7 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     steps = config.motion_refit_steps
     schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 0.5 * (1 + np.cos(np.pi * min(step / steps, 1.0))))
     for step in range(steps):
-        loss = motion_loss(model.config, model.motion(data.times, latents, data.present), data.targets)
+        loss = motion_loss(model.config, model.motion(data.times, latents, data.present, data.centre), data.targets)
         penalty = config.generator_weight_decay * model.generator.sensitivity()
         optimiser.zero_grad(set_to_none=True)
         (loss + penalty).backward()
