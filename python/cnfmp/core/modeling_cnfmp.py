@@ -19,7 +19,8 @@ colour (the median colour under its coarse mask), never z_i: one expert covers a
 or blue cube, and every geometric difference between scenes must go through the deformation,
 so the latent carries geometry. The deformation's translation is anchored to the centroid of
 the coarse mask (the centre prior), and is a projective function of the latent, as the camera
-sees the table.
+sees the table; or, with `anchored_centres`, it is that centroid plus a small latent offset,
+and the motion reads the centroid itself beside the latent.
 
 Coordinates are image coordinates in [-1, 1]^2 (x right, y down); time is normalised to [0, 1].
 """
