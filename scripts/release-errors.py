@@ -32,6 +32,7 @@ from cnfmp.core import api as core, trial  # noqa: E402
 from cnfmp.sim import api as sim  # noqa: E402
 from cnfmp.sim.engine import CLOSED_BELOW  # noqa: E402
 
+
 def release_frames(gripper: np.ndarray) -> list[int]:
     """Frames (indices) where the gripper command crosses from closed to open, as the
     simulator's judge counts a release."""
