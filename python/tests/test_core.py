@@ -303,7 +303,8 @@ def test_full_turns_let_the_template_turn_all_the_way_round():
 
 def test_anchored_centres_follow_the_mask_and_carry_the_position_to_the_motion():
     torch.manual_seed(0)
-    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, anchored_centres=True), num_demos=2).eval()
+    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False),
+                       num_demos=2).eval()
     latents = torch.randn(1, 2, TINY["latent_dim"])
     anchors = torch.tensor([[[0.2, -0.1], [-0.4, 0.3]]])
     moved = anchors + torch.tensor([[[0.1, 0.05], [0.0, 0.0]]])
@@ -319,6 +320,11 @@ def test_anchored_centres_follow_the_mask_and_carry_the_position_to_the_motion()
                                    model.motion(t, latents, second_only, anchors), rtol=0, atol=0)
         with pytest.raises(ValueError, match="centroids"):
             model.motion(t, latents, both)
+
+
+def test_anchored_centres_with_latents_shaped_by_the_motion_are_refused():
+    with pytest.raises(InputError, match="anchored_centres needs motion_shapes_latents false"):
+        CnfmpConfig(**{**TINY, "anchored_centres": True, "motion_shapes_latents": True}).check()
 
 
 def test_negative_fitting_grid_settings_are_refused():

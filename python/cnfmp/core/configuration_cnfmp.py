@@ -90,7 +90,7 @@ class CnfmpConfig(MotionConfig):
     #: to the latent. The latent is then left to the object's shape and pose, so a new scene
     #: that pairs one demonstration's position with another's pose needs no latent that
     #: training never tied to a motion. (The centre prior then keeps the offset small.) Pair it
-    #: with `motion_shapes_latents` False: shaped by the motion, the latents memorise each
+    #: with `motion_shapes_latents` False (check() insists): shaped by the motion, the latents memorise each
     #: demonstration's position again and the motion stops reading the centroid
     #: (docs/benchmarks.md: cup validation success 0.075 against 0.95).
     anchored_centres: bool = False
@@ -213,6 +213,10 @@ class CnfmpConfig(MotionConfig):
         for name in ["anneal_fraction", "draw_fraction"]:
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(f"{source}: {name} must be in [0, 1], got {getattr(self, name)!r}")
+        if self.anchored_centres and self.motion_shapes_latents:
+            raise InputError(f"{source}: anchored_centres needs motion_shapes_latents false (shaped by the "
+                             "motion, the latents memorise each demonstration's position and the motion "
+                             "ignores the mask centroid)")
 
 
 @dataclass

@@ -202,6 +202,12 @@ class CoarseResidual:
         return out[..., 0].transpose(1, 2)
 
 
+def slot_anchor(anchors: torch.Tensor | None, slot: int) -> torch.Tensor | None:
+    """One slot's mask centroids (B, 2) of all centroids (B, N, 2); None stays None (models
+    without `anchored_centres` take none)."""
+    return None if anchors is None else anchors[:, slot]
+
+
 class CnfmpModel(nn.Module):
     """Scene fields, latents and motion of one task (shapes: B scenes, N objects, K endpoints,
     D latent size, P pixels, T times)."""
@@ -238,7 +244,7 @@ class CnfmpModel(nn.Module):
     def object_centres(self, latents: torch.Tensor, anchors: torch.Tensor | None = None) -> torch.Tensor:
         """Object latents (B, N, D) and mask centroids (B, N, 2) -> template centres c(z_i)
         (B, N, 2), image coordinates."""
-        return torch.stack([field.object_centre(latents[:, k], None if anchors is None else anchors[:, k])
+        return torch.stack([field.object_centre(latents[:, k], slot_anchor(anchors, k))
                             for k, field in enumerate(self.objects)], dim=1)
 
     def motion_latents(self, latents: torch.Tensor, anchors: torch.Tensor | None, present: torch.Tensor | None):
@@ -281,7 +287,7 @@ class CnfmpModel(nn.Module):
         """
         rgbs, logits, canonicals = [], [], []
         rendered = map_objects(lambda slot: self.objects[slot](coords, latents[:, slot], colours[:, slot], progress,
-                                                               anchor=None if anchors is None else anchors[:, slot]),
+                                                               anchor=slot_anchor(anchors, slot)),
                                range(len(self.objects)))
         for slot, (rgb, logit, canonical) in enumerate(rendered):
             rgbs.append(rgb)
