@@ -32,6 +32,11 @@ def test_paraphrases_parse_to_the_same_target_and_destination(prompt):
 def test_parser_roles_across_tasks():
     assert roles("move to the goal behind the wall") == [("goal marker", None, "destination"), ("wall", None, "obstacle")]
     assert roles("go over the wall to the goal marker") == [("wall", None, "obstacle"), ("goal marker", None, "destination")]
+    # a place with no destination word before it is still the destination, when nothing else is
+    assert roles("reach the goal marker on the other side of the wall") == [
+        ("goal marker", None, "destination"), ("wall", None, "obstacle")]
+    assert roles("put the red ball in the box by the plate") == [
+        ("ball", "red", "target"), ("box", None, "destination"), ("plate", None, "object")]
     assert roles("set the red block down on the inclined plate") == [("cube", "red", "target"), ("ramp", None, "destination")]
     # a cup named twice keeps its first mention; the third cup is another object to move
     assert roles("put the red cup in the blue cup, then the green cup in the red cup") == [

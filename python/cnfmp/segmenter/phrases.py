@@ -5,7 +5,8 @@
 the vocabulary (longest match first, so "sheet of paper" beats "paper") with an optional
 colour before it ("red", "red-coloured") or after it ("the cup that is red"). Roles:
 
-- ``destination``: the phrase follows a destination word ("in", "onto", "to", ...),
+- ``destination``: the phrase follows a destination word ("in", "onto", "to", ...), or,
+  when none does, it is the first place named ("reach the goal marker"),
 - ``obstacle``: a fixture (a wall),
 - ``target``: the first other movable thing,
 - ``object``: anything else (a second thing to move in a stacking prompt).
@@ -21,7 +22,7 @@ from __future__ import annotations
 import functools
 import json
 import re
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 from cnfmp.errors import InputError
 from cnfmp.prompts import prompts_dir
@@ -142,6 +143,13 @@ def parse(prompt: str) -> list[Phrase]:
             span = (matches[start].start(), matches[end - 1].end())
             phrases.append(Phrase(prompt[span[0]:span[1]], role, category, colour, span))
         i = end
+    if not any(p.role == "destination" for p in phrases):
+        # A place named without a destination word ("reach the goal marker") is still where
+        # the motion ends.
+        place = next((k for k, p in enumerate(phrases)
+                      if p.role == "object" and vocab["categories"][p.category]["kind"] == "place"), None)
+        if place is not None:
+            phrases[place] = replace(phrases[place], role="destination")
     return phrases
 
 
