@@ -89,10 +89,10 @@ class CnfmpConfig(MotionConfig):
     #: motion reads the centroid (through a learned projective map from image to table) next
     #: to the latent. The latent is then left to the object's shape and pose, so a new scene
     #: that pairs one demonstration's position with another's pose needs no latent that
-    #: training never tied to a motion. (The centre prior then keeps the offset small.) Pair it
-    #: with `motion_shapes_latents` False (check() insists): shaped by the motion, the latents memorise each
-    #: demonstration's position again and the motion stops reading the centroid
-    #: (docs/benchmarks.md: cup validation success 0.075 against 0.95).
+    #: training never tied to a motion. (The centre prior then keeps the offset small.) Needs
+    #: `motion_shapes_latents` False (check() refuses the pair): shaped by the motion, the
+    #: latents memorise each demonstration's position again and the motion stops reading the
+    #: centroid (docs/benchmarks.md: cup validation success 0.075 against 0.95).
     anchored_centres: bool = False
 
     #: Weight of a pull of each object's simplex weights towards the simplex centre (squared
