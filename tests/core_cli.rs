@@ -236,6 +236,38 @@ fn train_predict_eval_and_bad_inputs() {
         ]),
         "held-out",
     );
+    // Validation scenes for choosing settings: training-range seeds above the demonstrations'.
+    let output = cnfmp(&[
+        "eval",
+        "--model",
+        arg(&model),
+        "--task",
+        "wall_avoidance",
+        "--episodes",
+        "1",
+        "--seed-start",
+        "500000",
+        "--validation",
+    ]);
+    assert!(output.status.success(), "{}", stderr(&output));
+    assert!(
+        String::from_utf8_lossy(&output.stdout).contains("on 1 validation wall_avoidance scenes (seeds 500000..=500000)")
+    );
+    assert_bad_input(
+        &cnfmp(&[
+            "eval",
+            "--model",
+            arg(&model),
+            "--task",
+            "wall_avoidance",
+            "--episodes",
+            "2",
+            "--seed-start",
+            "999999",
+            "--validation",
+        ]),
+        "not all within 500000..=999999",
+    );
     assert_bad_input(
         &cnfmp(&[
             "eval",

@@ -24,6 +24,9 @@ use crate::trajectory::resample::{ResampleTarget, resample};
 
 /// First held-out scene seed (seeds below it are for training; see `cnfmp sim`).
 pub const FIRST_HELDOUT_SEED: u64 = 1_000_000;
+/// First validation scene seed: the upper half of the training range, far above any
+/// dataset's demonstrations (which number from 0).
+pub const FIRST_VALIDATION_SEED: u64 = 500_000;
 /// One past the last held-out seed.
 pub const HELDOUT_SEED_END: u64 = 2_000_000;
 
@@ -94,9 +97,15 @@ pub struct EvalArgs {
     /// Number of scenes.
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000))]
     episodes: u64,
-    /// First scene seed; scenes use consecutive seeds, all held-out (1000000..=1999999).
+    /// First scene seed; scenes use consecutive seeds, all held-out (1000000..=1999999), or
+    /// all validation scenes (500000..=999999) with --validation.
     #[arg(long, default_value_t = FIRST_HELDOUT_SEED)]
     seed_start: u64,
+    /// Evaluate on validation scenes instead (give --seed-start too): training-range seeds no
+    /// demonstration uses (500000..=999999), for choosing a recipe or setting without
+    /// touching the held-out ones.
+    #[arg(long)]
+    validation: bool,
     /// Write the summary and per-episode results as JSON here (replaced atomically).
     #[arg(long)]
     json: Option<PathBuf>,
@@ -116,6 +125,20 @@ pub(crate) fn heldout_seed_range(seed_start: u64, episodes: u64) -> Result<u64, 
         return Err(Failure::BadInput(format!(
             "evaluation scenes must be held-out: seeds {seed_start}..={last} are not all within {FIRST_HELDOUT_SEED}..={}",
             HELDOUT_SEED_END - 1
+        )));
+    }
+    Ok(last)
+}
+
+/// The last seed of `episodes` consecutive validation scenes from `seed_start`: training-range
+/// seeds from FIRST_VALIDATION_SEED, which no dataset of demonstrations reaches; a bad-input
+/// failure otherwise.
+pub(crate) fn validation_seed_range(seed_start: u64, episodes: u64) -> Result<u64, Failure> {
+    let last = seed_start.saturating_add(episodes.saturating_sub(1));
+    if seed_start < FIRST_VALIDATION_SEED || last >= FIRST_HELDOUT_SEED {
+        return Err(Failure::BadInput(format!(
+            "validation scenes must be training-range seeds no demonstration uses: seeds {seed_start}..={last} are not all within {FIRST_VALIDATION_SEED}..={}",
+            FIRST_HELDOUT_SEED - 1
         )));
     }
     Ok(last)
@@ -348,7 +371,11 @@ fn mean(values: impl Iterator<Item = f64>) -> f64 {
 }
 
 pub fn eval(args: EvalArgs) -> Result<(), Failure> {
-    let last = heldout_seed_range(args.seed_start, args.episodes)?;
+    let (last, scenes) = if args.validation {
+        (validation_seed_range(args.seed_start, args.episodes)?, "validation")
+    } else {
+        (heldout_seed_range(args.seed_start, args.episodes)?, "held-out")
+    };
     let model_task = model_task(&args.model)?;
     if model_task != args.task {
         return Err(Failure::BadInput(format!(
@@ -478,7 +505,7 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
         )?;
     }
     print_stdout(&format!(
-        "{} on {} held-out {} scenes (seeds {}..={last}): success {:.2}, MED {:.2} cm, latency p50 {:.0} ms / p95 {:.0} ms, \
+        "{} on {} {scenes} {} scenes (seeds {}..={last}): success {:.2}, MED {:.2} cm, latency p50 {:.0} ms / p95 {:.0} ms, \
          scene PSNR {:.1} dB, mask IoU {:.2}",
         summary.model,
         summary.episodes,
@@ -495,7 +522,18 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
 
 #[cfg(test)]
 mod tests {
-    use super::quantile;
+    use super::{FIRST_HELDOUT_SEED, heldout_seed_range, quantile, validation_seed_range};
+
+    #[test]
+    fn validation_and_held_out_seed_ranges_do_not_overlap() {
+        assert_eq!(validation_seed_range(500_000, 80).unwrap(), 500_079);
+        assert_eq!(validation_seed_range(999_990, 10).unwrap(), 999_999);
+        assert!(validation_seed_range(499_999, 1).is_err()); // too close to the demonstrations
+        assert!(validation_seed_range(999_999, 2).is_err()); // runs into the held-out seeds
+        assert!(validation_seed_range(FIRST_HELDOUT_SEED, 1).is_err());
+        assert!(heldout_seed_range(999_999, 1).is_err());
+        assert_eq!(heldout_seed_range(FIRST_HELDOUT_SEED, 50).unwrap(), FIRST_HELDOUT_SEED + 49);
+    }
 
     #[test]
     fn quantiles_interpolate() {
