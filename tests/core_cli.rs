@@ -198,19 +198,14 @@ fn train_predict_eval_and_bad_inputs() {
     );
 
     let report = dir.path().join("eval.json");
-    let output = cnfmp(&[
-        "eval",
-        "--model",
-        arg(&model),
-        "--task",
-        "wall_avoidance",
-        "--episodes",
-        "2",
-        "--seed-start",
-        "1000010",
-        "--json",
-        arg(&report),
-    ]);
+    // `cnfmp eval` of the tiny model on wall_avoidance: `episodes` scenes from `seed_start`.
+    let eval = |episodes: &str, seed_start: &str, more: &[&str]| {
+        let mut args = vec!["eval", "--model", arg(&model), "--task", "wall_avoidance"];
+        args.extend(["--episodes", episodes, "--seed-start", seed_start]);
+        args.extend_from_slice(more);
+        cnfmp(&args)
+    };
+    let output = eval("2", "1000010", &["--json", arg(&report)]);
     assert!(output.status.success(), "{}", stderr(&output));
     assert!(
         String::from_utf8_lossy(&output.stdout).contains("on 2 held-out wall_avoidance scenes")
@@ -222,52 +217,14 @@ fn train_predict_eval_and_bad_inputs() {
     assert!(episodes.iter().all(|e| e["med_cm"].as_f64().unwrap() > 0.0));
     let rate = summary["success_rate"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&rate));
-    assert_bad_input(
-        &cnfmp(&[
-            "eval",
-            "--model",
-            arg(&model),
-            "--task",
-            "wall_avoidance",
-            "--episodes",
-            "2",
-            "--seed-start",
-            "5",
-        ]),
-        "held-out",
-    );
+    assert_bad_input(&eval("2", "5", &[]), "held-out");
     // Validation scenes for choosing settings: training-range seeds above the demonstrations'.
-    let output = cnfmp(&[
-        "eval",
-        "--model",
-        arg(&model),
-        "--task",
-        "wall_avoidance",
-        "--episodes",
-        "1",
-        "--seed-start",
-        "500000",
-        "--validation",
-    ]);
+    let output = eval("1", "500000", &["--validation"]);
     assert!(output.status.success(), "{}", stderr(&output));
     assert!(
         String::from_utf8_lossy(&output.stdout).contains("on 1 validation wall_avoidance scenes (seeds 500000..=500000)")
     );
-    assert_bad_input(
-        &cnfmp(&[
-            "eval",
-            "--model",
-            arg(&model),
-            "--task",
-            "wall_avoidance",
-            "--episodes",
-            "2",
-            "--seed-start",
-            "999999",
-            "--validation",
-        ]),
-        "not all within 500000..=999999",
-    );
+    assert_bad_input(&eval("2", "999999", &["--validation"]), "not all within 500000..=999999");
     assert_bad_input(
         &cnfmp(&[
             "eval",

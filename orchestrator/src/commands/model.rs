@@ -120,25 +120,40 @@ pub struct EvalArgs {
 /// The last seed of `episodes` consecutive scenes from `seed_start`, all of which must be
 /// held-out; a bad-input failure otherwise.
 pub(crate) fn heldout_seed_range(seed_start: u64, episodes: u64) -> Result<u64, Failure> {
-    let last = seed_start.saturating_add(episodes.saturating_sub(1));
-    if seed_start < FIRST_HELDOUT_SEED || last >= HELDOUT_SEED_END {
-        return Err(Failure::BadInput(format!(
-            "evaluation scenes must be held-out: seeds {seed_start}..={last} are not all within {FIRST_HELDOUT_SEED}..={}",
-            HELDOUT_SEED_END - 1
-        )));
-    }
-    Ok(last)
+    seeds_within(
+        seed_start,
+        episodes,
+        FIRST_HELDOUT_SEED..HELDOUT_SEED_END,
+        "evaluation scenes must be held-out",
+    )
 }
 
 /// The last seed of `episodes` consecutive validation scenes from `seed_start`: training-range
 /// seeds from FIRST_VALIDATION_SEED, which no dataset of demonstrations reaches; a bad-input
 /// failure otherwise.
 pub(crate) fn validation_seed_range(seed_start: u64, episodes: u64) -> Result<u64, Failure> {
+    seeds_within(
+        seed_start,
+        episodes,
+        FIRST_VALIDATION_SEED..FIRST_HELDOUT_SEED,
+        "validation scenes must be training-range seeds no demonstration uses",
+    )
+}
+
+/// The last of `episodes` consecutive seeds from `seed_start` when all lie in `allowed`; else
+/// a bad-input failure that starts with `rule`.
+fn seeds_within(
+    seed_start: u64,
+    episodes: u64,
+    allowed: std::ops::Range<u64>,
+    rule: &str,
+) -> Result<u64, Failure> {
     let last = seed_start.saturating_add(episodes.saturating_sub(1));
-    if seed_start < FIRST_VALIDATION_SEED || last >= FIRST_HELDOUT_SEED {
+    if seed_start < allowed.start || last >= allowed.end {
         return Err(Failure::BadInput(format!(
-            "validation scenes must be training-range seeds no demonstration uses: seeds {seed_start}..={last} are not all within {FIRST_VALIDATION_SEED}..={}",
-            FIRST_HELDOUT_SEED - 1
+            "{rule}: seeds {seed_start}..={last} are not all within {}..={}",
+            allowed.start,
+            allowed.end - 1
         )));
     }
     Ok(last)
