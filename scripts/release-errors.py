@@ -76,7 +76,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", required=True, help="core model directory")
     parser.add_argument("--task", default=None, help="task (default: the model's)")
-    parser.add_argument("--seed-start", type=int, default=500_000,
+    parser.add_argument("--seed-start", type=int, default=trial.VALIDATION_SEED_START,
                         help="first scene seed (0.. are the demonstrations' scenes; default 500000)")
     parser.add_argument("--scenes", type=int, default=20)
     args = parser.parse_args()

@@ -71,7 +71,7 @@ def main() -> None:
         parser.error(f"--slot must be in 1..{config.num_objects} ({', '.join(config.object_names)})")
     slot = args.slot - 1
     demos = model.demo_logits.shape[0]
-    seed_start = args.seed_start if args.seed_start is not None else (500_000 if args.validation else 0)
+    seed_start = args.seed_start if args.seed_start is not None else (trial.VALIDATION_SEED_START if args.validation else 0)
     scenes = args.scenes or (20 if args.validation else demos)
     problem = trial.validation_range_error(seed_start, scenes)
     if problem:

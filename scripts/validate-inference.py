@@ -70,7 +70,7 @@ def main() -> None:
     parser.add_argument("--model", required=True, help="core model directory")
     parser.add_argument("--task", default=None, help="task (default: the model's)")
     parser.add_argument("--scenes", type=int, default=80)
-    parser.add_argument("--seed-start", type=int, default=500_000)
+    parser.add_argument("--seed-start", type=int, default=trial.VALIDATION_SEED_START)
     parser.add_argument("--masks", choices=["prompt", "simulator"], default="prompt",
                         help="coarse masks from the segmenter (default) or the simulator")
     parser.add_argument("--segmenter-weights", default=None,

@@ -1,7 +1,6 @@
 """scripts/release-errors.py: the release frames it compares at, its per-scene errors on a
 shipped model's own training scene, and its refusal of held-out seeds."""
 
-import importlib.util
 import os
 import subprocess
 import sys
@@ -14,11 +13,8 @@ SCRIPT = os.path.join(ROOT, "scripts", "release-errors.py")
 
 
 @pytest.fixture(scope="module")
-def script():
-    spec = importlib.util.spec_from_file_location("release_errors", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def script(load_script):
+    return load_script("release-errors")
 
 
 def test_release_frames_are_the_closed_to_open_crossings(script):

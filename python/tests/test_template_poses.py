@@ -1,7 +1,6 @@
 """scripts/template-poses.py: the template pose it reads off a latent, the scene parameters
 it shows next to it, and its refusal of held-out seeds and of models without full turns."""
 
-import importlib.util
 import os
 import subprocess
 import sys
@@ -15,11 +14,8 @@ INCLINE = os.path.join(ROOT, "models", "incline_pick_place")
 
 
 @pytest.fixture(scope="module")
-def script():
-    spec = importlib.util.spec_from_file_location("template_poses", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def script(load_script):
+    return load_script("template-poses")
 
 
 def test_the_pose_is_the_turn_and_scale_of_the_similarity(script):

@@ -16,6 +16,11 @@ from cnfmp.sim import api as sim
 from cnfmp.sim.task import TRAIN_SEEDS
 
 
+#: First validation scene seed: training-range seeds far above any dataset's demonstrations
+#: (which number from 0), and below the held-out ones (`cnfmp eval --validation` uses the same).
+VALIDATION_SEED_START = 500_000
+
+
 def validation_range_error(seed_start: int, scenes: int) -> str | None:
     """Why scenes `seed_start`.. (`scenes` of them) may not be used to study a model, or None
     when they lie in the training range (held-out scenes are for `cnfmp eval` alone)."""
