@@ -25,7 +25,8 @@ use crate::trajectory::resample::{ResampleTarget, resample};
 /// First held-out scene seed (seeds below it are for training; see `cnfmp sim`).
 pub const FIRST_HELDOUT_SEED: u64 = 1_000_000;
 /// First validation scene seed: the upper half of the training range, far above any
-/// dataset's demonstrations (which number from 0).
+/// dataset's demonstrations (which number from 0). The validation scripts under `scripts/`
+/// start at the same seed (`VALIDATION_SEED_START` in `python/cnfmp/core/trial.py`).
 pub const FIRST_VALIDATION_SEED: u64 = 500_000;
 /// One past the last held-out seed.
 pub const HELDOUT_SEED_END: u64 = 2_000_000;
