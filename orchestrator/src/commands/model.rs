@@ -353,6 +353,9 @@ struct EvalSummary {
     episodes: usize,
     seed_start: u64,
     success_rate: f64,
+    /// 95% Wilson score interval of the success rate, [low, high]: how far the rate of
+    /// this many scenes can be trusted (45 of 50 is 0.79..0.96).
+    success_interval_95: [f64; 2],
     med_cm: f64,
     /// Over every episode but the first (which loads the model).
     latency_ms_p50: f64,
@@ -361,6 +364,22 @@ struct EvalSummary {
     mask_iou_mean: f64,
     wall_time_s: f64,
     per_episode: Vec<Episode>,
+}
+
+/// The 95% Wilson score interval [low, high] of a success rate of `successes` out of
+/// `trials` (both bounds within 0..=1; [0, 1] for no trials). Unlike the normal
+/// approximation it stays inside 0..=1 and is not empty at 50 of 50.
+fn wilson_interval_95(successes: usize, trials: usize) -> [f64; 2] {
+    if trials == 0 {
+        return [0.0, 1.0];
+    }
+    const Z: f64 = 1.959_964;
+    let n = trials as f64;
+    let p = successes as f64 / n;
+    let centre = p + Z * Z / (2.0 * n);
+    let spread = Z * (p * (1.0 - p) / n + Z * Z / (4.0 * n * n)).sqrt();
+    let scale = 1.0 + Z * Z / n;
+    [((centre - spread) / scale).max(0.0), ((centre + spread) / scale).min(1.0)]
 }
 
 /// The q-quantile (0..=1) of `values` by linear interpolation; NaN when empty.
@@ -498,12 +517,14 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
     let ious = episodes
         .iter()
         .flat_map(|e| e.objects.iter().filter_map(|o| o.mask_iou));
+    let successes = episodes.iter().filter(|e| e.success).count();
     let summary = EvalSummary {
         model: args.model.display().to_string(),
         task: args.task.clone(),
         episodes: episodes.len(),
         seed_start: args.seed_start,
-        success_rate: episodes.iter().filter(|e| e.success).count() as f64 / episodes.len() as f64,
+        success_rate: successes as f64 / episodes.len() as f64,
+        success_interval_95: wilson_interval_95(successes, episodes.len()),
         med_cm: mean(episodes.iter().map(|e| e.med_cm)),
         latency_ms_p50: quantile(&warm, 0.5),
         latency_ms_p95: quantile(&warm, 0.95),
@@ -521,13 +542,15 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
         )?;
     }
     print_stdout(&format!(
-        "{} on {} {scenes} {} scenes (seeds {}..={last}): success {:.2}, MED {:.2} cm, latency p50 {:.0} ms / p95 {:.0} ms, \
-         scene PSNR {:.1} dB, mask IoU {:.2}",
+        "{} on {} {scenes} {} scenes (seeds {}..={last}): success {:.2} (95% interval {:.2}-{:.2}), MED {:.2} cm, \
+         latency p50 {:.0} ms / p95 {:.0} ms, scene PSNR {:.1} dB, mask IoU {:.2}",
         summary.model,
         summary.episodes,
         summary.task,
         summary.seed_start,
         summary.success_rate,
+        summary.success_interval_95[0],
+        summary.success_interval_95[1],
         summary.med_cm,
         summary.latency_ms_p50,
         summary.latency_ms_p95,
@@ -538,7 +561,19 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
 
 #[cfg(test)]
 mod tests {
-    use super::{FIRST_HELDOUT_SEED, heldout_seed_range, quantile, validation_seed_range};
+    use super::{FIRST_HELDOUT_SEED, heldout_seed_range, quantile, validation_seed_range, wilson_interval_95};
+
+    #[test]
+    fn success_intervals_bracket_the_rate_and_narrow_with_more_scenes() {
+        let at_the_line = wilson_interval_95(45, 50);
+        assert!((at_the_line[0] - 0.786).abs() < 1e-3 && (at_the_line[1] - 0.957).abs() < 1e-3, "{at_the_line:?}");
+        let same_rate_more_scenes = wilson_interval_95(270, 300);
+        assert!(same_rate_more_scenes[0] > at_the_line[0] && same_rate_more_scenes[1] < at_the_line[1]);
+        // Every success: the upper bound is 1, the lower one is not.
+        let all = wilson_interval_95(50, 50);
+        assert!((all[1] - 1.0).abs() < 1e-9 && (all[0] - 0.929).abs() < 1e-3, "{all:?}");
+        assert_eq!(wilson_interval_95(0, 0), [0.0, 1.0]);
+    }
 
     #[test]
     fn validation_and_held_out_seed_ranges_do_not_overlap() {
