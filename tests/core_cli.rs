@@ -217,6 +217,9 @@ fn train_predict_eval_and_bad_inputs() {
     assert!(episodes.iter().all(|e| e["med_cm"].as_f64().unwrap() > 0.0));
     let rate = summary["success_rate"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&rate));
+    // Two scenes say little: the 95% interval brackets the rate and is wide.
+    let interval: Vec<f64> = summary["success_interval_95"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!(interval[0] <= rate && rate <= interval[1] && interval[1] - interval[0] > 0.5, "{interval:?}");
     assert_bad_input(&eval("2", "5", &[]), "held-out");
     // Validation scenes for choosing settings: training-range seeds above the demonstrations'.
     let output = eval("1", "500000", &["--validation"]);

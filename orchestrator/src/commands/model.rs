@@ -368,7 +368,7 @@ struct EvalSummary {
 
 /// The 95% Wilson score interval [low, high] of a success rate of `successes` out of
 /// `trials` (both bounds within 0..=1; [0, 1] for no trials). Unlike the normal
-/// approximation it stays inside 0..=1 and is not empty at 50 of 50.
+/// approximation it stays inside 0..=1 and keeps a width at 50 of 50.
 fn wilson_interval_95(successes: usize, trials: usize) -> [f64; 2] {
     if trials == 0 {
         return [0.0, 1.0];
