@@ -327,6 +327,44 @@ def test_anchored_centres_with_latents_shaped_by_the_motion_are_refused():
         CnfmpConfig(**{**TINY, "anchored_centres": True, "motion_shapes_latents": True}).check()
 
 
+def test_shading_moments_point_from_the_centroid_to_the_darker_side():
+    image = np.full((40, 40, 3), 200, np.uint8)
+    labels = np.zeros((40, 40), np.uint8)
+    labels[10:30, 10:30] = 1  # a uniform square: no offset
+    labels[0:8, 0:8] = 2  # a square whose right-hand columns are in shadow
+    image[0:8, 5:8] = 60
+    inputs = core_data.scene_inputs(image, labels, 3, 16, 1)
+    shading = inputs["shading"]
+    assert shading.shape == (3, 3)
+    np.testing.assert_allclose(shading[0], [0.0, 0.0, 200 / 255], atol=1e-6)
+    dx, dy, luminance = shading[1]
+    # Darkness-weighted centroid at column 6 (centre of columns 5..7) against 3.5: +2.5 px of 40.
+    assert abs(dx - 2.5 / 40 * 2) < 1e-6 and abs(dy) < 1e-6
+    assert abs(luminance - (5 * 200 + 3 * 60) / 8 / 255) < 1e-6
+    np.testing.assert_array_equal(shading[2], [0.0, 0.0, 0.0])  # slot 3 is absent
+
+
+def test_shading_moments_reach_the_motion_and_need_anchored_centres():
+    torch.manual_seed(0)
+    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False,
+                                   shading_moments=True), num_demos=2).eval()
+    assert any(p is model.shading_embedding for p in model.motion_parameters())
+    latents = torch.randn(1, 2, TINY["latent_dim"])
+    anchors = torch.tensor([[[0.2, -0.1], [-0.4, 0.3]]])
+    shading = torch.tensor([[[0.05, -0.02, 0.6], [0.0, 0.0, 0.4]]])
+    darker_left = shading * torch.tensor([[[-1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]])
+    t = torch.linspace(0, 1, 20)
+    both = torch.ones(1, 2, dtype=torch.bool)
+    with torch.no_grad():
+        # Untrained, the generator's response is small, but it is there (ignored, it would be 0).
+        assert (model.motion(t, latents, both, anchors, shading)
+                - model.motion(t, latents, both, anchors, darker_left)).abs().max() > 1e-4
+        with pytest.raises(ValueError, match="shading moments"):
+            model.motion(t, latents, both, anchors)
+    with pytest.raises(InputError, match="shading_moments needs anchored_centres"):
+        CnfmpConfig(**{**TINY, "shading_moments": True}).check()
+
+
 def test_negative_fitting_grid_settings_are_refused():
     with pytest.raises(InputError, match="texels_per_pixel must be a whole number >= 0"):
         CnfmpConfig(**{**TINY, "texels_per_pixel": -1}).check()

@@ -94,6 +94,15 @@ class CnfmpConfig(MotionConfig):
     #: latents memorise each demonstration's position again and the motion stops reading the
     #: centroid (docs/benchmarks.md: cup validation success 0.075 against 0.95).
     anchored_centres: bool = False
+    #: Whether the motion also reads, for each object, the first moment of the image's
+    #: darkness inside its coarse mask: the offset from the mask's centroid to its
+    #: darkness-weighted centroid (image coordinates) and the mask's mean luminance, through a
+    #: learned map into the latent space like the centroid's. Shaded faces and the parts
+    #: under an object's top show on one side of it, which tells a pose the template's turn
+    #: cannot: a near-square ramp's template turns with its yaw only modulo a quarter turn,
+    #: and this is where the rising edge shows (docs/benchmarks.md: incline validation
+    #: success 0.55 -> 0.825). Needs `anchored_centres`.
+    shading_moments: bool = False
 
     #: Weight of a pull of each object's simplex weights towards the simplex centre (squared
     #: distance), in training and in inference alike. Directions of the latent that the image
@@ -217,6 +226,9 @@ class CnfmpConfig(MotionConfig):
             raise InputError(f"{source}: anchored_centres needs motion_shapes_latents false (shaped by the "
                              "motion, the latents memorise each demonstration's position and the motion "
                              "ignores the mask centroid)")
+        if self.shading_moments and not self.anchored_centres:
+            raise InputError(f"{source}: shading_moments needs anchored_centres (the motion reads the "
+                             "shading beside the mask centroid)")
 
 
 @dataclass

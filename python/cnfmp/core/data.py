@@ -109,7 +109,9 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
     Returns ``{"rgb": (R, R, 3) float32 in [0, 1], "masks": (N, R, R) bool coarse masks,
     "dilated": (N, R, R) bool, "colour": (N, 3) float32 median colour of each mask,
     "centre": (N, 2) float32 centroid of each mask in image coordinates ([-1, 1], x right,
-    y down; 0 when absent), "present": (N,) bool}``. InputError for mismatched sizes or labels beyond the slots.
+    y down; 0 when absent), "shading": (N, 3) float32 the offset from that centroid to the
+    mask's darkness-weighted centroid (image coordinates) and the mask's mean luminance in
+    [0, 1] (0 when absent), "present": (N,) bool}``. InputError for mismatched sizes or labels beyond the slots.
     """
     import cv2
 
@@ -124,7 +126,7 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
         raise InputError(f"the masks use label {highest} but the model has {num_objects} object slot(s)")
     rgb = cv2.resize(image, (resolution, resolution), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
     kernel = np.ones((2 * dilation + 1, 2 * dilation + 1), np.uint8)
-    masks, dilated, colours, centres = [], [], [], []
+    masks, dilated, colours, centres, shading = [], [], [], [], []
     height, width = labels.shape
     for k in range(1, num_objects + 1):
         full = labels == k
@@ -136,6 +138,20 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
         masks.append(small)
         dilated.append(cv2.dilate(small.astype(np.uint8), kernel) > 0)
         colours.append(np.median(image[full], axis=0) / 255.0 if full.any() else np.zeros(3))
+        shading.append(_shading_moments(image, full, rows, cols) if full.any() else [0.0, 0.0, 0.0])
     return {"rgb": rgb, "masks": np.stack(masks), "dilated": np.stack(dilated),
             "colour": np.asarray(colours, np.float32), "centre": np.asarray(centres, np.float32),
-            "present": np.array([m.any() for m in masks])}
+            "shading": np.asarray(shading, np.float32), "present": np.array([m.any() for m in masks])}
+
+
+def _shading_moments(image: np.ndarray, mask: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> list[float]:
+    """[dx, dy, mean luminance] of one non-empty mask (its pixels at `rows`, `cols`): the
+    offset from its centroid to its darkness-weighted centroid in image coordinates ([-1, 1]
+    across the image), each pixel weighted by the square of how much darker it is than the
+    mask's brightest pixel."""
+    height, width = mask.shape
+    luminance = image[mask].astype(np.float64).mean(axis=1) / 255.0
+    darkness = (luminance.max() - luminance) ** 2 + 1e-9  # a uniform mask: no offset, no 0/0
+    dx = ((darkness * cols).sum() / darkness.sum() - cols.mean()) / width * 2
+    dy = ((darkness * rows).sum() / darkness.sum() - rows.mean()) / height * 2
+    return [dx, dy, luminance.mean()]

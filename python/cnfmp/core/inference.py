@@ -208,7 +208,8 @@ class Predictor:
         with torch.no_grad():
             latents = self.model.latents(weights[None], present[None])
             anchors = torch.from_numpy(inputs["centre"])[None]
-            outputs = self.model.motion(self.times, latents, present[None], anchors)[0].numpy().astype(np.float64)
+            shading = torch.from_numpy(inputs["shading"])[None]
+            outputs = self.model.motion(self.times, latents, present[None], anchors, shading)[0].numpy().astype(np.float64)
         trajectory = decode_trajectory(outputs, c)
         decoded = time.perf_counter()
         fit = self.scene_fit(latents, colour, present, rgb, inputs["masks"], anchors)

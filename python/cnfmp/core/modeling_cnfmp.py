@@ -234,6 +234,10 @@ class CnfmpModel(nn.Module):
             self.table_projection = nn.Parameter(torch.zeros(2))
             #: How each object's table position enters its latent for the motion: (N, D, 3).
             self.position_embedding = nn.Parameter(0.5 * torch.randn(n, d, 3))
+        if config.shading_moments:
+            #: How each object's shading moments (dx, dy, mean luminance) enter its latent for
+            #: the motion: (N, D, 3).
+            self.shading_embedding = nn.Parameter(0.5 * torch.randn(n, d, 3))
 
     # ---- latents ----
     def latents(self, weights: torch.Tensor, present: torch.Tensor) -> torch.Tensor:
@@ -247,9 +251,11 @@ class CnfmpModel(nn.Module):
         return torch.stack([field.object_centre(latents[:, k], slot_anchor(anchors, k))
                             for k, field in enumerate(self.objects)], dim=1)
 
-    def motion_latents(self, latents: torch.Tensor, anchors: torch.Tensor | None, present: torch.Tensor | None):
+    def motion_latents(self, latents: torch.Tensor, anchors: torch.Tensor | None, present: torch.Tensor | None,
+                       shading: torch.Tensor | None = None):
         """The latents the motion reads (B, N, D): with `anchored_centres`, each present
-        object's latent plus its embedded table position, from its mask centroid (B, N, 2)."""
+        object's latent plus its embedded table position, from its mask centroid (B, N, 2),
+        and with `shading_moments` its embedded shading moments (B, N, 3)."""
         if not self.config.anchored_centres:
             return latents
         if anchors is None:
@@ -257,6 +263,10 @@ class CnfmpModel(nn.Module):
         homogeneous = torch.cat([anchors, torch.ones_like(anchors[..., :1])], dim=-1)
         table = homogeneous / (1.0 + anchors @ self.table_projection)[..., None]
         position = torch.einsum("ndk,bnk->bnd", self.position_embedding, table)
+        if self.config.shading_moments:
+            if shading is None:
+                raise ValueError("a model with shading_moments needs the masks' shading moments")
+            position = position + torch.einsum("ndk,bnk->bnd", self.shading_embedding, shading)
         if present is not None:
             position = position * present[..., None]
         return latents + position
@@ -324,13 +334,14 @@ class CnfmpModel(nn.Module):
         return torch.softmax(torch.where(present[:, None, :], scores[None], float("-inf")), dim=-1)
 
     def motion(self, t: torch.Tensor, latents: torch.Tensor, present: torch.Tensor | None = None,
-               anchors: torch.Tensor | None = None) -> torch.Tensor:
+               anchors: torch.Tensor | None = None, shading: torch.Tensor | None = None) -> torch.Tensor:
         """Normalised times (T,), object latents (B, N, D), their presence (B, N) bool and,
-        for `anchored_centres`, their mask centroids (B, N, 2) -> generator outputs (B, T, 7):
-        normalised position, rotation vector (rad), gripper."""
+        for `anchored_centres`, their mask centroids (B, N, 2) (and for `shading_moments`
+        their shading moments (B, N, 3)) -> generator outputs (B, T, 7): normalised position,
+        rotation vector (rad), gripper."""
         if self.training and not self.config.motion_shapes_latents:
             latents = latents.detach()
-        latents = self.motion_latents(latents, anchors, present)
+        latents = self.motion_latents(latents, anchors, present, shading)
         gates = self.gates(t, present)
         z_t = torch.einsum("tn,bnd->btd" if gates.dim() == 2 else "btn,bnd->btd", gates, latents)  # (B, T, D)
         return self.generator(time_basis(t, self.config), z_t)
@@ -338,6 +349,8 @@ class CnfmpModel(nn.Module):
     def motion_parameters(self) -> list[nn.Parameter]:
         """The parameters that map object latents (and positions) to the motion."""
         extra = [self.table_projection, self.position_embedding] if self.config.anchored_centres else []
+        if self.config.shading_moments:
+            extra.append(self.shading_embedding)
         return list(self.gating.parameters()) + list(self.generator.parameters()) + extra
 
     def lipschitz_penalty(self) -> torch.Tensor:

@@ -58,6 +58,7 @@ class TrainingSet:
         self.colour = torch.from_numpy(np.stack([s["colour"] for s in scenes]))  # (B, N, 3)
         self.present = torch.from_numpy(np.stack([s["present"] for s in scenes]))  # (B, N)
         self.centre = torch.from_numpy(np.stack([s["centre"] for s in scenes]))  # (B, N, 2)
+        self.shading = torch.from_numpy(np.stack([s["shading"] for s in scenes]))  # (B, N, 3)
         # Coarse label per field pixel (0 background, k object k), for the weak mask prior.
         labels = np.zeros((len(scenes), res * res), np.int64)
         for b, s in enumerate(scenes):
@@ -151,7 +152,7 @@ class _Draw:
             label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
             mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
             frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
-            motion = motion_loss(model.config, model.motion(data.times[frames], latents, present, anchors),
+            motion = motion_loss(model.config, model.motion(data.times[frames], latents, present, anchors, data.shading[bt]),
                                  data.targets[bt][:, frames])
             lipschitz = model.lipschitz_penalty()
             centre_err = ((model.object_centres(latents, anchors) - anchors) ** 2).sum(dim=-1)
@@ -235,7 +236,8 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     steps = config.motion_refit_steps
     schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 0.5 * (1 + np.cos(np.pi * min(step / steps, 1.0))))
     for step in range(steps):
-        loss = motion_loss(model.config, model.motion(data.times, latents, data.present, data.centre), data.targets)
+        loss = motion_loss(model.config, model.motion(data.times, latents, data.present, data.centre, data.shading),
+                           data.targets)
         penalty = config.generator_weight_decay * model.generator.sensitivity()
         optimiser.zero_grad(set_to_none=True)
         (loss + penalty).backward()
