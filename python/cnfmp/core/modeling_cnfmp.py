@@ -20,7 +20,8 @@ or blue cube, and every geometric difference between scenes must go through the 
 so the latent carries geometry. The deformation's translation is anchored to the centroid of
 the coarse mask (the centre prior), and is a projective function of the latent, as the camera
 sees the table; or, with `anchored_centres`, it is that centroid plus a small latent offset,
-and the motion reads the centroid itself beside the latent.
+and the motion reads the centroid itself beside the latent (with `shading_moments`, also
+where the image inside the mask is darker, which tells a pose the template's turn cannot).
 
 Coordinates are image coordinates in [-1, 1]^2 (x right, y down); time is normalised to [0, 1].
 """
