@@ -138,19 +138,19 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
         masks.append(small)
         dilated.append(cv2.dilate(small.astype(np.uint8), kernel) > 0)
         colours.append(np.median(image[full], axis=0) / 255.0 if full.any() else np.zeros(3))
-        shading.append(_shading_moments(image, full, rows, cols) if full.any() else [0.0, 0.0, 0.0])
+        shading.append(_shading_moments(image, rows, cols) if full.any() else [0.0, 0.0, 0.0])
     return {"rgb": rgb, "masks": np.stack(masks), "dilated": np.stack(dilated),
             "colour": np.asarray(colours, np.float32), "centre": np.asarray(centres, np.float32),
             "shading": np.asarray(shading, np.float32), "present": np.array([m.any() for m in masks])}
 
 
-def _shading_moments(image: np.ndarray, mask: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> list[float]:
-    """[dx, dy, mean luminance] of one non-empty mask (its pixels at `rows`, `cols`): the
-    offset from its centroid to its darkness-weighted centroid in image coordinates ([-1, 1]
-    across the image), each pixel weighted by the square of how much darker it is than the
-    mask's brightest pixel."""
-    height, width = mask.shape
-    luminance = image[mask].astype(np.float64).mean(axis=1) / 255.0
+def _shading_moments(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> list[float]:
+    """[dx, dy, mean luminance] of one non-empty mask, given as its pixels' `rows` and `cols`:
+    the offset from its centroid to its darkness-weighted centroid in image coordinates
+    ([-1, 1] across the image), each pixel weighted by the square of how much darker it is
+    than the mask's brightest pixel."""
+    height, width = image.shape[:2]
+    luminance = image[rows, cols].astype(np.float64).mean(axis=1) / 255.0
     darkness = (luminance.max() - luminance) ** 2 + 1e-9  # a uniform mask: no offset, no 0/0
     dx = ((darkness * cols).sum() / darkness.sum() - cols.mean()) / width * 2
     dy = ((darkness * rows).sum() / darkness.sum() - rows.mean()) / height * 2
