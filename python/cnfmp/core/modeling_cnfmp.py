@@ -263,14 +263,14 @@ class CnfmpModel(nn.Module):
             raise ValueError("a model with anchored_centres needs the mask centroids")
         homogeneous = torch.cat([anchors, torch.ones_like(anchors[..., :1])], dim=-1)
         table = homogeneous / (1.0 + anchors @ self.table_projection)[..., None]
-        position = torch.einsum("ndk,bnk->bnd", self.position_embedding, table)
+        observed = torch.einsum("ndk,bnk->bnd", self.position_embedding, table)
         if self.config.shading_moments:
             if shading is None:
                 raise ValueError("a model with shading_moments needs the masks' shading moments")
-            position = position + torch.einsum("ndk,bnk->bnd", self.shading_embedding, shading)
+            observed = observed + torch.einsum("ndk,bnk->bnd", self.shading_embedding, shading)
         if present is not None:
-            position = position * present[..., None]
-        return latents + position
+            observed = observed * present[..., None]
+        return latents + observed
 
     @staticmethod
     def weight_spread(weights: torch.Tensor) -> torch.Tensor:
@@ -348,7 +348,7 @@ class CnfmpModel(nn.Module):
         return self.generator(time_basis(t, self.config), z_t)
 
     def motion_parameters(self) -> list[nn.Parameter]:
-        """The parameters that map object latents (and positions) to the motion."""
+        """The parameters that map object latents (and positions and shading moments) to the motion."""
         extra = [self.table_projection, self.position_embedding] if self.config.anchored_centres else []
         if self.config.shading_moments:
             extra.append(self.shading_embedding)
