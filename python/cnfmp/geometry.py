@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-__all__ = ["Rotation", "Waypoint", "from_rotation", "from_tangent", "min_jerk", "path_through",
-           "quat_down", "tilt_from_vertical", "to_rotation", "to_tangent", "yaw_of"]
+__all__ = ["Rotation", "Waypoint", "from_rotation", "from_swing_twist", "from_tangent", "min_jerk", "path_through",
+           "quat_down", "tilt_from_vertical", "to_rotation", "to_swing_twist", "to_tangent", "yaw_of"]
 
 
 def to_rotation(quat_wxyz) -> Rotation:
@@ -38,6 +38,35 @@ def to_tangent(quat_wxyz, reference_wxyz) -> np.ndarray:
 def from_tangent(rotvec, reference_wxyz) -> np.ndarray:
     """Inverse of :func:`to_tangent`: ``R = R_ref exp(omega)`` as ``[w, x, y, z]`` (..., 4)."""
     return from_rotation(to_rotation(reference_wxyz) * Rotation.from_rotvec(np.asarray(rotvec, float)))
+
+
+def to_swing_twist(quat_wxyz, reference_wxyz) -> np.ndarray:
+    """Orientations ``[w, x, y, z]`` (..., 4) -> ``[swing_x, swing_y, twist]`` (..., 3, rad)
+    relative to `reference_wxyz` (4,), the chart with ``R_ref^T R = exp(swing) exp(twist z)``:
+    the twist turns the gripper about the reference's finger axis (+z), the swing (a rotation
+    vector with no z part) then tilts that axis. The finger axis depends on the swing alone.
+
+    Why a second chart: in the tangent chart a tilt and a turn about the fingers combine
+    non-additively (the rotation vector of a tilted, turned gripper has cross terms), so a
+    motion that is affine in its latents cannot read the tilt from one object and the turn
+    from another exactly; in this chart both enter additively. Singular only for a swing of
+    half a turn (fingers pointing back up), which no task comes near."""
+    relative = (to_rotation(reference_wxyz).inv() * to_rotation(quat_wxyz)).as_quat()  # x y z w
+    # q and -q are one rotation; w >= 0 keeps the twist in [-pi, pi].
+    relative = np.where(relative[..., 3:] < 0, -relative, relative)
+    twist = 2.0 * np.arctan2(relative[..., 2], relative[..., 3])
+    twist_rotation = Rotation.from_rotvec(twist[..., None] * np.array([0.0, 0.0, 1.0]))
+    swing = (Rotation.from_quat(relative) * twist_rotation.inv()).as_rotvec()
+    return np.concatenate([swing[..., :2], twist[..., None]], axis=-1)
+
+
+def from_swing_twist(swing_twist, reference_wxyz) -> np.ndarray:
+    """Inverse of :func:`to_swing_twist`: ``R = R_ref exp([sx, sy, 0]) exp([0, 0, twist])`` as
+    ``[w, x, y, z]`` (..., 4)."""
+    values = np.asarray(swing_twist, float)
+    swing = np.concatenate([values[..., :2], np.zeros_like(values[..., :1])], axis=-1)
+    twist = np.concatenate([np.zeros_like(values[..., :2]), values[..., 2:3]], axis=-1)
+    return from_rotation(to_rotation(reference_wxyz) * Rotation.from_rotvec(swing) * Rotation.from_rotvec(twist))
 
 
 def quat_down(yaw: float) -> np.ndarray:

@@ -14,7 +14,7 @@ import torch
 from PIL import Image
 
 from cnfmp import geometry
-from cnfmp.core import api, data as core_data, training
+from cnfmp.core import api, data as core_data, motion, training
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.inference import Predictor
 from cnfmp.core.modeling_cnfmp import CnfmpModel
@@ -143,6 +143,37 @@ def test_rotations_round_trip_through_the_tangent_space():
     assert np.allclose(np.abs(np.sum(back * quats, axis=1)), 1.0, atol=1e-9)
     small = rng.normal(scale=0.5, size=(20, 3))
     np.testing.assert_allclose(geometry.to_tangent(geometry.from_tangent(small, reference), reference), small, atol=1e-9)
+
+
+def test_swing_twist_chart_round_trips_and_keeps_tilt_and_turn_apart():
+    reference = geometry.quat_down(0.3)
+    quats = geometry.from_rotation(geometry.Rotation.random(100, random_state=2))
+    back = geometry.from_swing_twist(geometry.to_swing_twist(quats, reference), reference)
+    assert np.allclose(np.abs(np.sum(back * quats, axis=1)), 1.0, atol=1e-9)
+    # A gripper turned by 0.4 rad about the vertical, then tilted 0.5 rad about world x: the
+    # turn is all twist, the tilt all swing, and the tilt alone sets where the fingers point.
+    for turn in [-0.6, 0.0, 0.4]:
+        tilted = geometry.from_rotation(geometry.Rotation.from_rotvec([0.5, 0.0, 0.0])
+                                        * geometry.to_rotation(geometry.quat_down(0.3 + turn)))
+        swing_x, swing_y, twist = geometry.to_swing_twist(tilted, reference)
+        assert twist == pytest.approx(-turn, abs=1e-9)  # the fingers point down: a world turn is -twist
+        assert np.hypot(swing_x, swing_y) == pytest.approx(0.5, abs=1e-9)
+        fingers = geometry.to_rotation(geometry.from_swing_twist([swing_x, swing_y, 0.0], reference)).apply([0, 0, 1])
+        np.testing.assert_allclose(fingers, geometry.to_rotation(tilted).apply([0, 0, 1]), atol=1e-9)
+    # The tangent chart mixes them: its rotation vector of the same pose is not additive.
+    tangent = geometry.to_tangent(tilted, reference)
+    assert np.abs(tangent - geometry.to_swing_twist(tilted, reference)).max() > 0.05
+
+
+def test_trajectories_decode_to_themselves_in_either_rotation_chart(demos):
+    trajectory = demos.trajectories[0]
+    for chart in ["tangent", "swing_twist"]:
+        config = dataclasses.replace(CnfmpConfig(rotation_chart=chart).fitted_to(demos), output_fps=demos.fps)
+        decoded = motion.decode_trajectory(motion.trajectory_targets(trajectory, config), config)
+        np.testing.assert_allclose(decoded["position"], trajectory[:, :3], atol=1e-9)
+        assert np.allclose(np.abs(np.sum(decoded["orientation"] * trajectory[:, 3:7], axis=1)), 1.0, atol=1e-9)
+    with pytest.raises(InputError, match="rotation_chart must be one of tangent, swing_twist"):
+        CnfmpConfig(rotation_chart="euler").check()
 
 
 def test_save_and_load_give_identical_outputs(trained, tmp_path, demos):
@@ -363,6 +394,75 @@ def test_shading_moments_reach_the_motion_and_need_anchored_centres():
             model.motion(t, latents, both, anchors)
     with pytest.raises(InputError, match="shading_moments needs anchored_centres"):
         CnfmpConfig(**{**TINY, "shading_moments": True}).check()
+
+
+def test_tilt_cues_measure_elongation_size_and_where_the_shaded_part_lies():
+    image = np.full((40, 40, 3), 200, np.uint8)
+    labels = np.zeros((40, 40), np.uint8)
+    labels[10:14, 4:36] = 1  # a wide bar, uniform: elongated along x, no shaded part
+    labels[20:36, 20:36] = 2  # a square whose bottom rows are in shadow
+    image[32:36, 20:36] = 90
+    cues = core_data.scene_inputs(image, labels, 3, 16, 1)["tilt_cues"]
+    assert cues.shape == (3, 5)
+    elongation_x, elongation_y, size, shaded_dx, shaded_dy = cues[0]
+    assert elongation_x > 0.9 and abs(elongation_y) < 1e-6 and shaded_dx == shaded_dy == 0.0
+    # The bar spans 32 px of 40 across: its spread is about 32 / sqrt(12) px.
+    assert size == pytest.approx(32 / np.sqrt(12) / 40 * 2, rel=0.02)
+    _, _, _, shaded_dx, shaded_dy = cues[1]
+    # Shaded rows 32..35 centre at 33.5 against the square's 27.5: +6 px of 40, straight down.
+    assert shaded_dx == pytest.approx(0.0, abs=1e-6) and shaded_dy == pytest.approx(6 / 40 * 2, abs=1e-6)
+    np.testing.assert_array_equal(cues[2], np.zeros(5))  # slot 3 is absent
+
+
+def test_the_tilt_object_alone_sets_the_gripper_swing_and_survives_save_and_load(tmp_path):
+    config = CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False,
+                         shading_moments=True, rotation_chart="swing_twist", tilt_object=1)
+    torch.manual_seed(0)
+    model = CnfmpModel(config, num_demos=2).eval()
+    with torch.no_grad():  # an untrained tilt readout answers weakly; make it answer plainly
+        model.tilt_generator.latent_weights.normal_()
+    assert any(p is model.tilt_generator.latent_weights for p in model.motion_parameters())
+    latents = torch.randn(1, 2, TINY["latent_dim"])
+    anchors = torch.tensor([[[0.2, -0.1], [-0.4, 0.3]]])
+    shading = torch.tensor([[[0.05, -0.02, 0.6], [0.01, 0.03, 0.4]]])
+    cues = torch.tensor([[[0.1, 0.0, 0.2, 0.0, 0.0], [0.3, -0.2, 0.25, 0.05, -0.04]]])
+    t = torch.linspace(0, 1, 20)
+    both = torch.ones(1, 2, dtype=torch.bool)
+
+    def swing(latents=latents, shading=shading, cues=cues, m=model):
+        return m.motion(t, latents, both, anchors, shading, cues)[..., 3:5]
+
+    with torch.no_grad():
+        # No latent, and nothing of the other object, reaches the swing...
+        torch.testing.assert_close(swing(latents=torch.randn_like(latents)), swing(), rtol=0, atol=0)
+        other = cues.clone()
+        other[0, 0] = torch.tensor([-0.5, 0.4, 0.1, 0.02, 0.03])
+        torch.testing.assert_close(swing(cues=other), swing(), rtol=0, atol=0)
+        # ...but every statistic of the tilt object does.
+        for k in range(5):
+            moved = cues.clone()
+            moved[0, 1, k] += 0.1
+            assert (swing(cues=moved) - swing()).abs().max() > 1e-3, k
+        with pytest.raises(ValueError, match="tilt cues"):
+            model.motion(t, latents, both, anchors, shading)
+        with pytest.raises(InputError, match="the object the gripper tilts to meet"):
+            model.motion(t, latents, torch.tensor([[True, False]]), anchors, shading, cues)
+        model.tilt_mean.fill_(0.1)  # the standardisation is part of the saved model
+        save_model(model, str(tmp_path))
+        loaded = load_model(str(tmp_path))
+        torch.testing.assert_close(swing(m=loaded), swing(), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("changes, message", [
+    (dict(tilt_object=1, rotation_chart="tangent"), 'tilt_object needs rotation_chart "swing_twist"'),
+    (dict(tilt_object=2, num_objects=2), "tilt_object is slot 2 but the model has only 2 object slot"),
+    (dict(tilt_object=1, num_objects=2, slot_can_be_absent=[False, True]), "which some demonstrations lack"),
+    (dict(tilt_object=-2), "tilt_object must be -1"),
+])
+def test_tilt_object_settings_that_cannot_work_are_refused(changes, message):
+    base = dict(anchored_centres=True, motion_shapes_latents=False, shading_moments=True, rotation_chart="swing_twist")
+    with pytest.raises(InputError, match=message):
+        CnfmpConfig(**TINY, **{**base, **changes}).check()
 
 
 def test_negative_fitting_grid_settings_are_refused():

@@ -103,6 +103,18 @@ class CnfmpConfig(MotionConfig):
     #: and this is where the rising edge shows (docs/benchmarks.md: incline validation
     #: success 0.55 -> 0.825). Needs `anchored_centres`.
     shading_moments: bool = False
+    #: Slot (0-based, in label order) of the object whose surface the gripper tilts to meet,
+    #: or -1 for none (incline: 1, the ramp). With a slot, the two swing outputs of the
+    #: rotation (the tilt of the finger axis; needs `rotation_chart` "swing_twist") come from
+    #: a movement primitive of their own that reads only that object's mask statistics: its
+    #: centroid, shading moments, elongation, size and the offset of its shaded part
+    #: (:func:`cnfmp.core.data.scene_inputs`, "tilt_cues"), each standardised over the
+    #: training demonstrations. No latent enters the tilt. Why: with 20 demonstrations, a
+    #: tilt read through the gates from every latent memorises the demonstrations instead of
+    #: the slope, and fails on ramp yaws few of them show; ten image statistics do not
+    #: (docs/benchmarks.md, "The tilt from the ramp's mask statistics": incline validation
+    #: success 0.853 -> see there). Needs `anchored_centres` and `shading_moments`.
+    tilt_object: int = -1
 
     #: Weight of a pull of each object's simplex weights towards the simplex centre (squared
     #: distance), in training and in inference alike. Directions of the latent that the image
@@ -229,6 +241,18 @@ class CnfmpConfig(MotionConfig):
         if self.shading_moments and not self.anchored_centres:
             raise InputError(f"{source}: shading_moments needs anchored_centres (the motion reads the "
                              "shading beside the mask centroid)")
+        if not isinstance(self.tilt_object, int) or self.tilt_object < -1:
+            raise InputError(f"{source}: tilt_object must be -1 (none) or an object slot >= 0, got {self.tilt_object!r}")
+        # num_objects is 0 until the config is fitted to demonstrations.
+        if 0 < self.num_objects <= self.tilt_object:
+            raise InputError(f"{source}: tilt_object is slot {self.tilt_object} but the model has only "
+                             f"{self.num_objects} object slot(s)")
+        if 0 <= self.tilt_object < len(self.slot_can_be_absent) and self.slot_can_be_absent[self.tilt_object]:
+            raise InputError(f"{source}: tilt_object is slot {self.tilt_object}, which some demonstrations lack; "
+                             "the tilt needs that object in every scene")
+        if self.tilt_object >= 0 and (self.rotation_chart != "swing_twist" or not self.shading_moments):
+            raise InputError(f"{source}: tilt_object needs rotation_chart \"swing_twist\" (the tilt is its "
+                             "swing outputs) and shading_moments (the tilt reads the shading)")
 
 
 @dataclass

@@ -18,6 +18,10 @@ from cnfmp.configuration import JsonConfig
 from cnfmp.errors import InputError
 
 
+#: The encodings of the rotation outputs (`MotionConfig.rotation_chart`).
+ROTATION_CHARTS = ("tangent", "swing_twist")
+
+
 @dataclass
 class MotionConfig(JsonConfig):
     # ---- what the demonstrations say about the motion (from data) ----
@@ -34,6 +38,14 @@ class MotionConfig(JsonConfig):
     position_std: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0])
 
     # ---- motion encoding ----
+    #: How the generator's three rotation outputs encode an orientation relative to
+    #: `reference_quat`: "tangent", the rotation vector log(R_ref^T R) (paper §II-B), or
+    #: "swing_twist", [swing_x, swing_y, twist] with R_ref^T R = exp(swing) exp(twist about the
+    #: fingers) (:func:`cnfmp.geometry.to_swing_twist`). The two agree while the fingers point
+    #: where the reference's do; for a gripper that both tilts and turns, swing-twist keeps
+    #: the tilt and the turn additive, which an affine generator can then read from different
+    #: objects (incline: the ramp's slope and the block's yaw).
+    rotation_chart: str = "tangent"
     #: Time basis of the motion: normalised Gaussian bumps spread evenly over the trajectory,
     #: this many per second of duration (at least 4 in all), each as wide as their spacing
     #: (the basis of classic movement primitives). Smooth by construction, so the motion
@@ -51,6 +63,9 @@ class MotionConfig(JsonConfig):
     def check(self, source: str = "config") -> None:
         if not isinstance(self.steps, int) or self.steps < 1:
             raise InputError(f"{source}: steps must be a whole number >= 1, got {self.steps!r}")
+        if self.rotation_chart not in ROTATION_CHARTS:
+            raise InputError(f"{source}: rotation_chart must be one of {', '.join(ROTATION_CHARTS)}, "
+                             f"got {self.rotation_chart!r}")
         for name in ["output_fps", "time_basis_per_second"]:
             if not getattr(self, name) > 0:
                 raise InputError(f"{source}: {name} must be > 0, got {getattr(self, name)!r}")
@@ -68,4 +83,4 @@ class MotionConfig(JsonConfig):
         )
 
 
-__all__ = ["MotionConfig"]
+__all__ = ["ROTATION_CHARTS", "MotionConfig"]

@@ -111,7 +111,8 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
     "centre": (N, 2) float32 centroid of each mask in image coordinates ([-1, 1], x right,
     y down; 0 when absent), "shading": (N, 3) float32 the offset from that centroid to the
     mask's darkness-weighted centroid (image coordinates) and the mask's mean luminance in
-    [0, 1] (0 when absent), "present": (N,) bool}``. InputError for mismatched sizes or labels beyond the slots.
+    [0, 1] (0 when absent), "tilt_cues": (N, 5) float32 more of each mask's statistics for
+    a tilt readout (:func:`_tilt_cues`; 0 when absent), "present": (N,) bool}``. InputError for mismatched sizes or labels beyond the slots.
     """
     import cv2
 
@@ -126,7 +127,7 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
         raise InputError(f"the masks use label {highest} but the model has {num_objects} object slot(s)")
     rgb = cv2.resize(image, (resolution, resolution), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
     kernel = np.ones((2 * dilation + 1, 2 * dilation + 1), np.uint8)
-    masks, dilated, colours, centres, shading = [], [], [], [], []
+    masks, dilated, colours, centres, shading, cues = [], [], [], [], [], []
     height, width = labels.shape
     for k in range(1, num_objects + 1):
         full = labels == k
@@ -139,9 +140,11 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
         dilated.append(cv2.dilate(small.astype(np.uint8), kernel) > 0)
         colours.append(np.median(image[full], axis=0) / 255.0 if full.any() else np.zeros(3))
         shading.append(_shading_moments(image, rows, cols) if full.any() else [0.0, 0.0, 0.0])
+        cues.append(_tilt_cues(image, rows, cols) if full.any() else [0.0] * 5)
     return {"rgb": rgb, "masks": np.stack(masks), "dilated": np.stack(dilated),
             "colour": np.asarray(colours, np.float32), "centre": np.asarray(centres, np.float32),
-            "shading": np.asarray(shading, np.float32), "present": np.array([m.any() for m in masks])}
+            "shading": np.asarray(shading, np.float32), "tilt_cues": np.asarray(cues, np.float32),
+            "present": np.array([m.any() for m in masks])}
 
 
 def _shading_moments(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> list[float]:
@@ -155,3 +158,30 @@ def _shading_moments(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> l
     dx = ((darkness * cols).sum() / darkness.sum() - cols.mean()) / width * 2
     dy = ((darkness * rows).sum() / darkness.sum() - rows.mean()) / height * 2
     return [dx, dy, luminance.mean()]
+
+
+#: A pixel belongs to a mask's shaded part when its luminance is under this fraction of the
+#: mask's median luminance (validation scenes: 0.8-0.95 work alike, docs/benchmarks.md).
+SHADED_BELOW_MEDIAN = 0.9
+
+
+def _tilt_cues(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> list[float]:
+    """[elongation_x, elongation_y, size, shaded_dx, shaded_dy] of one non-empty mask, given
+    as its pixels' `rows` and `cols`, in image coordinates ([-1, 1] across the image).
+
+    With x, y the pixels' offsets from the mask's centroid and s^2 = mean(x^2 + y^2): the
+    elongation is (mean(x^2 - y^2), mean(2 x y)) / s^2 (the direction of the mask's long axis
+    at twice its angle, scaled by how elongated it is), the size is s, and the shaded offset
+    runs from the centroid to the centroid of the shaded part (pixels darker than
+    SHADED_BELOW_MEDIAN times the mask's median luminance; 0 when there are none). Where a
+    tilted surface's shaded faces and support lie tells which way it rises better than the
+    darkness-weighted moment of :func:`_shading_moments`, which the darkest pixels dominate.
+    """
+    height, width = image.shape[:2]
+    x = (cols - cols.mean()) / width * 2
+    y = (rows - rows.mean()) / height * 2
+    spread = (x * x + y * y).mean() + 1e-12  # a one-pixel mask: no 0/0
+    luminance = image[rows, cols].astype(np.float64).mean(axis=1)
+    shaded = luminance < SHADED_BELOW_MEDIAN * np.median(luminance)
+    offset = [x[shaded].mean(), y[shaded].mean()] if shaded.any() else [0.0, 0.0]
+    return [(x * x - y * y).mean() / spread, 2.0 * (x * y).mean() / spread, float(np.sqrt(spread)), *offset]

@@ -209,7 +209,8 @@ class Predictor:
             latents = self.model.latents(weights[None], present[None])
             anchors = torch.from_numpy(inputs["centre"])[None]
             shading = torch.from_numpy(inputs["shading"])[None]
-            outputs = self.model.motion(self.times, latents, present[None], anchors, shading)[0].numpy().astype(np.float64)
+            cues = torch.from_numpy(inputs["tilt_cues"])[None]
+            outputs = self.model.motion(self.times, latents, present[None], anchors, shading, cues)[0].numpy().astype(np.float64)
         trajectory = decode_trajectory(outputs, c)
         decoded = time.perf_counter()
         fit = self.scene_fit(latents, colour, present, rgb, inputs["masks"], anchors)

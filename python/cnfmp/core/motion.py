@@ -2,8 +2,8 @@
 targets, the Gaussian time basis, and the basis-function trajectory generator.
 
 Time is normalised to [0, 1] inside models; files carry seconds. Generator outputs are
-normalised position (config.position_mean / position_std), rotation vector (rad) relative to
-config.reference_quat, and gripper opening. `config` is any
+normalised position (config.position_mean / position_std), rotation (rad) relative to
+config.reference_quat in the config's rotation_chart, and gripper opening. `config` is any
 :class:`cnfmp.core.configuration_common.MotionConfig`.
 """
 
@@ -18,7 +18,7 @@ from torch import nn
 from cnfmp import geometry
 from cnfmp.core.configuration_common import MotionConfig
 
-#: Outputs of the trajectory generator: position (3), rotation vector (3), gripper (1).
+#: Outputs of the trajectory generator: position (3), rotation (3, in the config's rotation_chart), gripper (1).
 MOTION_DIM = 7
 
 
@@ -63,10 +63,17 @@ class BasisGenerator(nn.Module):
         return (basis @ self.mean)[None] + shift
 
 
+def _rotation_chart(config: MotionConfig):
+    """(to_chart, from_chart) of the config's rotation_chart (see MotionConfig)."""
+    if config.rotation_chart == "swing_twist":
+        return geometry.to_swing_twist, geometry.from_swing_twist
+    return geometry.to_tangent, geometry.from_tangent
+
+
 def trajectory_targets(trajectory: np.ndarray, config: MotionConfig) -> np.ndarray:
     """(T, 8) ``x y z qw qx qy qz gripper`` -> (T, 7) generator targets."""
     pos = (trajectory[:, :3] - np.asarray(config.position_mean)) / np.asarray(config.position_std)
-    rot = geometry.to_tangent(trajectory[:, 3:7], config.reference_quat)
+    rot = _rotation_chart(config)[0](trajectory[:, 3:7], config.reference_quat)
     return np.concatenate([pos, rot, trajectory[:, 7:8]], axis=1)
 
 
@@ -77,7 +84,7 @@ def decode_trajectory(outputs: np.ndarray, config: MotionConfig) -> dict:
     return {
         "t": np.arange(steps) / config.output_fps,
         "position": outputs[:, :3] * np.asarray(config.position_std) + np.asarray(config.position_mean),
-        "orientation": geometry.from_tangent(outputs[:, 3:6], config.reference_quat),
+        "orientation": _rotation_chart(config)[1](outputs[:, 3:6], config.reference_quat),
         "gripper": np.clip(outputs[:, 6], 0.0, 1.0),
     }
 

@@ -59,6 +59,7 @@ class TrainingSet:
         self.present = torch.from_numpy(np.stack([s["present"] for s in scenes]))  # (B, N)
         self.centre = torch.from_numpy(np.stack([s["centre"] for s in scenes]))  # (B, N, 2)
         self.shading = torch.from_numpy(np.stack([s["shading"] for s in scenes]))  # (B, N, 3)
+        self.cues = torch.from_numpy(np.stack([s["tilt_cues"] for s in scenes]))  # (B, N, 5)
         # Coarse label per field pixel (0 background, k object k), for the weak mask prior.
         labels = np.zeros((len(scenes), res * res), np.int64)
         for b, s in enumerate(scenes):
@@ -121,6 +122,12 @@ class _Draw:
         with torch.no_grad():  # the generator starts at the demonstrations' mean motion
             basis = time_basis(data.times, config)
             model.generator.mean.copy_(torch.linalg.lstsq(basis, data.targets.mean(dim=0)).solution)
+            if config.tilt_object >= 0:
+                statistics = model.tilt_statistics(data.centre, data.shading, data.cues, data.present)
+                model.tilt_mean.copy_(statistics.mean(dim=0))
+                # A statistic that never varies (a uniform mask's shaded offset) stays unscaled.
+                model.tilt_std.copy_(statistics.std(dim=0, unbiased=False).clamp(min=1e-6))
+                model.tilt_generator.mean.copy_(model.generator.mean[:, 3:5])
         latent_params = [model.endpoints, model.absent, model.demo_logits]
         net_params = [p for name, p in model.named_parameters() if name not in ("endpoints", "absent", "demo_logits")]
         self.optimiser = torch.optim.Adam([{"params": net_params, "lr": config.learning_rate},
@@ -152,7 +159,8 @@ class _Draw:
             label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
             mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
             frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
-            motion = motion_loss(model.config, model.motion(data.times[frames], latents, present, anchors, data.shading[bt]),
+            motion = motion_loss(model.config, model.motion(data.times[frames], latents, present, anchors, data.shading[bt],
+                                                            data.cues[bt]),
                                  data.targets[bt][:, frames])
             lipschitz = model.lipschitz_penalty()
             centre_err = ((model.object_centres(latents, anchors) - anchors) ** 2).sum(dim=-1)
@@ -160,7 +168,7 @@ class _Draw:
             weight_prior = (model.weight_spread(weights) * present).sum() / present.sum().clamp(min=1)
             loss = (config.image_weight * (composite + local) + motion + config.mask_prior_weight * mask_prior
                     + config.centre_prior_weight * centre_prior + config.weight_prior_weight * weight_prior
-                    + config.generator_weight_decay * model.generator.sensitivity()
+                    + config.generator_weight_decay * model.motion_penalty()
                     + config.lipschitz_weight * lipschitz - config.simplex_entropy_weight * entropy)
             self.optimiser.zero_grad(set_to_none=True)
             loss.backward()
@@ -236,9 +244,9 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     steps = config.motion_refit_steps
     schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 0.5 * (1 + np.cos(np.pi * min(step / steps, 1.0))))
     for step in range(steps):
-        loss = motion_loss(model.config, model.motion(data.times, latents, data.present, data.centre, data.shading),
+        loss = motion_loss(model.config, model.motion(data.times, latents, data.present, data.centre, data.shading, data.cues),
                            data.targets)
-        penalty = config.generator_weight_decay * model.generator.sensitivity()
+        penalty = config.generator_weight_decay * model.motion_penalty()
         optimiser.zero_grad(set_to_none=True)
         (loss + penalty).backward()
         optimiser.step()
