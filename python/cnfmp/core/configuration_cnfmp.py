@@ -113,7 +113,7 @@ class CnfmpConfig(MotionConfig):
     #: tilt read through the gates from every latent memorises the demonstrations instead of
     #: the slope, and fails on ramp yaws few of them show; ten image statistics do not
     #: (docs/benchmarks.md, "The tilt from the ramp's mask statistics": incline validation
-    #: success 0.853 -> see there). Needs `anchored_centres` and `shading_moments`.
+    #: success 0.853 -> 0.97). Needs `anchored_centres` and `shading_moments`.
     tilt_object: int = -1
 
     #: Weight of a pull of each object's simplex weights towards the simplex centre (squared

@@ -364,6 +364,8 @@ class CnfmpModel(nn.Module):
         outputs = self.generator(basis, z_t)
         if self.config.tilt_object < 0:
             return outputs
+        # The tilt readout's swing replaces the shared generator's (whose weights for those two
+        # outputs then go unused: one generator for every model keeps the rest uniform).
         features = (self.tilt_statistics(anchors, shading, cues, present) - self.tilt_mean) / self.tilt_std
         swing = self.tilt_generator(basis, features[:, None].expand(-1, len(t), -1))
         return torch.cat([outputs[..., :3], swing, outputs[..., 5:]], dim=-1)
@@ -391,7 +393,8 @@ class CnfmpModel(nn.Module):
         return penalty
 
     def motion_parameters(self) -> list[nn.Parameter]:
-        """The parameters that map object latents (and positions and shading moments) to the motion."""
+        """The parameters that map object latents (and positions and shading moments, and
+        the tilt object's statistics) to the motion."""
         extra = [self.table_projection, self.position_embedding] if self.config.anchored_centres else []
         if self.config.shading_moments:
             extra.append(self.shading_embedding)
