@@ -139,21 +139,27 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
         masks.append(small)
         dilated.append(cv2.dilate(small.astype(np.uint8), kernel) > 0)
         colours.append(np.median(image[full], axis=0) / 255.0 if full.any() else np.zeros(3))
-        shading.append(_shading_moments(image, rows, cols) if full.any() else [0.0, 0.0, 0.0])
-        cues.append(_tilt_cues(image, rows, cols) if full.any() else [0.0] * 5)
+        if full.any():
+            luminance = image[rows, cols].astype(np.float64).mean(axis=1)  # 0..255
+            shading.append(_shading_moments(luminance, rows, cols, height, width))
+            cues.append(_tilt_cues(luminance, rows, cols, height, width))
+        else:
+            shading.append([0.0, 0.0, 0.0])
+            cues.append([0.0] * 5)
     return {"rgb": rgb, "masks": np.stack(masks), "dilated": np.stack(dilated),
             "colour": np.asarray(colours, np.float32), "centre": np.asarray(centres, np.float32),
             "shading": np.asarray(shading, np.float32), "tilt_cues": np.asarray(cues, np.float32),
             "present": np.array([m.any() for m in masks])}
 
 
-def _shading_moments(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> list[float]:
-    """[dx, dy, mean luminance] of one non-empty mask, given as its pixels' `rows` and `cols`:
-    the offset from its centroid to its darkness-weighted centroid in image coordinates
-    ([-1, 1] across the image), each pixel weighted by the square of how much darker it is
-    than the mask's brightest pixel."""
-    height, width = image.shape[:2]
-    luminance = image[rows, cols].astype(np.float64).mean(axis=1) / 255.0
+def _shading_moments(luminance: np.ndarray, rows: np.ndarray, cols: np.ndarray, height: int,
+                     width: int) -> list[float]:
+    """[dx, dy, mean luminance in [0, 1]] of one non-empty mask, given as its pixels'
+    `luminance` (0..255), `rows` and `cols` in a `height` x `width` image: the offset from its
+    centroid to its darkness-weighted centroid in image coordinates ([-1, 1] across the
+    image), each pixel weighted by the square of how much darker it is than the mask's
+    brightest pixel."""
+    luminance = luminance / 255.0
     darkness = (luminance.max() - luminance) ** 2 + 1e-9  # a uniform mask: no offset, no 0/0
     dx = ((darkness * cols).sum() / darkness.sum() - cols.mean()) / width * 2
     dy = ((darkness * rows).sum() / darkness.sum() - rows.mean()) / height * 2
@@ -165,9 +171,11 @@ def _shading_moments(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> l
 SHADED_BELOW_MEDIAN = 0.9
 
 
-def _tilt_cues(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> list[float]:
+def _tilt_cues(luminance: np.ndarray, rows: np.ndarray, cols: np.ndarray, height: int,
+               width: int) -> list[float]:
     """[elongation_x, elongation_y, size, shaded_dx, shaded_dy] of one non-empty mask, given
-    as its pixels' `rows` and `cols`, in image coordinates ([-1, 1] across the image).
+    as its pixels' `luminance`, `rows` and `cols` in a `height` x `width` image, in image
+    coordinates ([-1, 1] across the image).
 
     With x, y the pixels' offsets from the mask's centroid and s^2 = mean(x^2 + y^2): the
     elongation is (mean(x^2 - y^2), mean(2 x y)) / s^2 (the direction of the mask's long axis
@@ -177,11 +185,9 @@ def _tilt_cues(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> list[fl
     tilted surface's shaded faces and support lie tells which way it rises better than the
     darkness-weighted moment of :func:`_shading_moments`, which the darkest pixels dominate.
     """
-    height, width = image.shape[:2]
     x = (cols - cols.mean()) / width * 2
     y = (rows - rows.mean()) / height * 2
     spread = (x * x + y * y).mean() + 1e-12  # a one-pixel mask: no 0/0
-    luminance = image[rows, cols].astype(np.float64).mean(axis=1)
     shaded = luminance < SHADED_BELOW_MEDIAN * np.median(luminance)
     offset = [x[shaded].mean(), y[shaded].mean()] if shaded.any() else [0.0, 0.0]
     return [(x * x - y * y).mean() / spread, 2.0 * (x * y).mean() / spread, float(np.sqrt(spread)), *offset]
