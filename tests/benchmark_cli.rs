@@ -4,8 +4,6 @@
 
 mod common;
 
-use std::time::Instant;
-
 use common::{arg, cnfmp, stderr};
 
 const METHODS: [&str; 5] = ["CNN-CNMP (low)", "CNN-CNMP (high)", "NFMP (grid)", "ours without gating (low)", "ours (low)"];
@@ -15,11 +13,9 @@ const TASKS: [&str; 4] = ["wall_avoidance", "incline_pick_place", "cup_stacking"
 fn quick_table1_trains_and_evaluates_every_method_and_a_rerun_reuses_them() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("reports");
-    let started = Instant::now();
     let shipped_configs = common::repo().join("configs/core");
     let run = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--episodes", "2", "--configs", arg(&shipped_configs)]);
     assert!(run.status.success(), "{}", stderr(&run));
-    let first_run = started.elapsed();
 
     // The CSV: one row per method and task it is evaluated on (NFMP: wall only), numbers in range.
     let csv = std::fs::read_to_string(out.join("table1.csv")).unwrap();
@@ -55,12 +51,10 @@ fn quick_table1_trains_and_evaluates_every_method_and_a_rerun_reuses_them() {
     assert!(work.join("models/cnfmp-low/cube_stacking/model.safetensors").is_file());
     assert!(work.join("datasets/wall_avoidance-27-from-900000").is_dir());
 
-    // A rerun reuses every job and writes the same table.
-    let started = Instant::now();
+    // A rerun reuses every job (it says so, and trains nothing) and writes the same table.
     let rerun = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--episodes", "2", "--configs", arg(&shipped_configs)]);
     assert!(rerun.status.success(), "{}", stderr(&rerun));
     assert!(stderr(&rerun).contains("reusing 43 finished job(s)"), "{}", stderr(&rerun));
-    assert!(started.elapsed() < first_run / 3, "the rerun took {:?} after {first_run:?}", started.elapsed());
     assert_eq!(std::fs::read_to_string(out.join("table1.csv")).unwrap(), csv);
 
     // A changed training config retrains the models it concerns (and evaluates them again);

@@ -68,9 +68,13 @@ def test_a_few_steps_lower_the_losses(demos):
     def value(line, key):
         return float(line.rsplit(f"{key} ", 1)[1].split()[0])
 
+    # Over seeds 0-5, with torch's default and AVX2 kernels alike, the last logged values were
+    # at most 0.16 (image), 0.09 (object) and 0.50 (motion, which starts from a least-squares
+    # fit of the mean trajectory) of the first: 0.7 is a margin over the worst seed.
     for key in ("image", "object", "motion"):
         assert value(last, key) < 0.7 * value(first, key), (key, first, last)
-    # The refit on inferred latents starts from the trained generator and improves on it.
+    # The refit on inferred latents starts from the trained generator and improves on it
+    # (by 25-96% over the same seeds).
     assert value(refits[-1], "motion") < value(refits[0], "motion"), refits
 
 
@@ -95,7 +99,8 @@ def test_several_draws_go_on_with_the_one_whose_motion_fits_best(demos):
     losses = choice["motion_mse"]
     assert choice["count"] == 3 and choice["steps"] == 20 and len(set(losses)) == 3
     assert losses[0] == round(single["final_losses"]["motion_mse"], 6)
-    assert choice["chosen"] == int(np.argmin(losses))
+    # Rounded for the summary, two losses could tie; the chosen one is a lowest either way.
+    assert losses[choice["chosen"]] == min(losses)
     same = all(torch.equal(a, b) for a, b in zip(model.state_dict().values(), single_model.state_dict().values()))
     assert same == (choice["chosen"] == 0)
     assert "draws" not in single
@@ -283,8 +288,13 @@ def test_refining_on_the_baked_appearance_fits_as_well_as_the_network(trained, d
                                         config.field_resolution, config.mask_dilation)
         _, baked_mse = predictor.infer_scene(inputs, seed=index)
         _, exact_mse = predictor.infer_scene(inputs, seed=index, exact=True)
+        # Both fits choose, with the networks, among candidates that include the same search
+        # starts, so the baked one can only trail where its refinement found less than the
+        # exact one's. Measured over six trainings of this fixture (seeds 0-5, 36 objects) with
+        # torch's default and AVX2 kernels: at most 1.05x (+1e-5); before the choice kept the
+        # starts, a refinement could leave a good start and end 6x worse.
         for baked, exact in zip(baked_mse, exact_mse):
-            assert baked < 1.5 * exact + 1e-3, (index, baked_mse, exact_mse)
+            assert baked < 1.2 * exact + 1e-4, (index, baked_mse, exact_mse)
 
 
 def test_coarse_residual_interpolates_smooth_fields_and_passes_gradients():

@@ -163,17 +163,30 @@ class Predictor:
             baked = self._bake(slot, start, fitting) if fast and c.texels_per_pixel else None
             coarse = (CoarseResidual(fitting[0], c.residual_grid_pixels * 2.0 / c.field_resolution)
                       if fast and c.residual_grid_pixels else None)
+            searched = start.detach().clone()
+            lowest = torch.full((start.shape[0],), float("inf"))
+            best_seen = searched.clone()
             start.requires_grad_(True)
             optimiser = torch.optim.Adam([start], lr=c.refine_learning_rate)
             for _ in range(c.refine_steps):
-                loss = self._object_loss(slot, start, *fitting, baked=baked, coarse=coarse)[0].sum()
+                per_start = self._object_loss(slot, start, *fitting, baked=baked, coarse=coarse)[0]
+                with torch.no_grad():  # the loss is of the iterate before this step
+                    better = per_start < lowest
+                    lowest = torch.where(better, per_start, lowest)
+                    best_seen[better] = start[better]
                 optimiser.zero_grad(set_to_none=True)
-                loss.backward()
+                per_start.sum().backward()
                 optimiser.step()
+            # Adam's first steps have the size of the learning rate whatever the gradient, so
+            # from a start already near the optimum (a training scene's own weights) a short
+            # refinement can end worse than it began. The choice is therefore made, with the
+            # networks, among the search's starts, each start's best iterate (by the
+            # refinement's own loss) and its last one: the fit never ends worse than its search.
             with torch.no_grad():
-                final, errors = self._object_loss(slot, start, *fitting)
+                candidates = torch.cat([searched, best_seen, start.detach()])
+                final, errors = self._object_loss(slot, candidates, *fitting)
                 best = int(torch.argmin(final))
-                return self.weights_of(start[best]), float(errors[best])
+                return self.weights_of(candidates[best]), float(errors[best])
 
         # The objects' objectives share nothing (Adam is per parameter), so each object is
         # fitted on its own thread: torch releases the GIL inside its kernels, and with one
