@@ -6,7 +6,7 @@
 
 mod common;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -329,4 +329,178 @@ fn a_request_over_the_time_limit_gets_504_and_the_server_goes_on() {
     let (status, _) = get(&server.url("/v1/health"));
     assert_eq!(status, 200);
     assert!(server.terminate(), "the server did not exit 0 within 60 s of SIGTERM");
+}
+
+/// A form with the image and the coarse masks as files, and text fields.
+fn masks_form(image: &[u8], masks: &[u8], fields: &[(&str, &str)]) -> (String, Vec<u8>) {
+    let mut body = Vec::new();
+    for (name, value) in fields {
+        body.extend_from_slice(format!("--b0undary\r\nContent-Disposition: form-data; name=\"{name}\"\r\n\r\n{value}\r\n").as_bytes());
+    }
+    for (name, bytes) in [("image", image), ("masks", masks)] {
+        let header = format!("--b0undary\r\nContent-Disposition: form-data; name=\"{name}\"; filename=\"{name}.png\"\r\nContent-Type: image/png\r\n\r\n");
+        body.extend_from_slice(header.as_bytes());
+        body.extend_from_slice(bytes);
+        body.extend_from_slice(b"\r\n");
+    }
+    body.extend_from_slice(b"--b0undary--\r\n");
+    ("multipart/form-data; boundary=b0undary".into(), body)
+}
+
+/// A scene rendered by the simulator: image PNG, label map PNG, object names.
+struct RenderedScene {
+    image: Vec<u8>,
+    masks: Vec<u8>,
+    objects: Vec<String>,
+    dir: PathBuf,
+}
+
+fn render(task: &str, seed: u64, out: &Path) -> RenderedScene {
+    let rendered = cnfmp(&["sim", "render", "--task", task, "--seed", &seed.to_string(), "--out", arg(out)]);
+    assert!(rendered.status.success(), "{}", common::stderr(&rendered));
+    let objects: Value = serde_json::from_slice(&std::fs::read(out.join("objects.json")).unwrap()).unwrap();
+    RenderedScene {
+        image: std::fs::read(out.join("image.png")).unwrap(),
+        masks: std::fs::read(out.join("masks.png")).unwrap(),
+        objects: serde_json::from_value(objects["objects"].clone()).unwrap(),
+        dir: out.to_path_buf(),
+    }
+}
+
+/// `cnfmp predict --masks --objects` on a rendered scene: the trajectory's frames.
+fn predict_with_masks(model: &Path, scene: &RenderedScene) -> Vec<Value> {
+    let out = scene.dir.join("predicted.json");
+    let run = cnfmp(&[
+        "predict", "--model", arg(model), "--image", arg(&scene.dir.join("image.png")), "--masks",
+        arg(&scene.dir.join("masks.png")), "--objects", arg(&scene.dir.join("objects.json")), "--out", arg(&out),
+    ]);
+    assert!(run.status.success(), "{}", common::stderr(&run));
+    let trajectory: Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    trajectory["frames"].as_array().unwrap().clone()
+}
+
+/// The same frames up to the wire's rounding (6 decimals).
+fn assert_same_frames(http: &Value, cli: &[Value], what: &str) {
+    let http = http.as_array().unwrap();
+    assert_eq!(http.len(), cli.len(), "{what}: frame counts differ");
+    for (a, b) in http.iter().zip(cli) {
+        for key in ["t", "position", "orientation", "gripper"] {
+            let numbers = |v: &Value| match v {
+                Value::Array(items) => items.iter().map(|x| x.as_f64().unwrap()).collect::<Vec<_>>(),
+                other => vec![other.as_f64().unwrap()],
+            };
+            for (x, y) in numbers(&a[key]).iter().zip(numbers(&b[key])) {
+                assert!((x - y).abs() <= 2e-6, "{what}: {key} {x} vs {y}");
+            }
+        }
+    }
+}
+
+#[test]
+fn every_model_answers_with_masks_as_predict_does_and_bad_masks_get_400() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(&[]);
+    let (_, text) = get(&server.url("/v1/models"));
+    let models: Value = serde_json::from_str(&text).unwrap();
+    let models = models["models"].as_array().unwrap().clone();
+    assert_eq!(models.len(), 5);
+    for model in &models {
+        let (name, task) = (model["name"].as_str().unwrap(), model["task"].as_str().unwrap());
+        let promptable = model["roles"].is_array();
+        let expected = if promptable { json!(["prompt", "masks"]) } else { json!(["masks"]) };
+        assert_eq!(model["inputs"], expected, "{name}");
+        let scene = render(task, 1_000_001, &dir.path().join(name));
+        let objects = serde_json::to_string(&scene.objects).unwrap();
+        let (content_type, body) = masks_form(&scene.image, &scene.masks, &[("objects", &objects), ("model", name)]);
+        let answer = post(&server.url("/v1/trajectories"), &content_type, &body);
+        assert_eq!(answer.status, 200, "{name}: {}", answer.body);
+        assert_eq!(answer.body["segmenter"], Value::Null, "{name}");
+        assert_eq!(answer.body["timings_ms"]["segment_ms"], 0.0, "{name}");
+        let first = &answer.body["objects"][0];
+        assert_eq!((first["phrase"].as_str(), first["slot"].as_u64(), first["found"].as_bool()), (Some(scene.objects[0].as_str()), Some(1), Some(true)), "{name}");
+        assert!(first["confidence"]["psnr_db"].as_f64().is_some(), "{name}: {first}");
+        assert_same_frames(&answer.body["frames"], &predict_with_masks(&repo().join("models").join(name), &scene), name);
+    }
+
+    // The JSON body takes the same masks; bad masks get 400 with a code before any work.
+    let scene = render("cup_stacking", 1_000_002, &dir.path().join("cup"));
+    let encode = |bytes: &[u8]| base64::engine::general_purpose::STANDARD.encode(bytes);
+    let request = |masks: &[u8], objects: Value| {
+        json!({"image_base64": encode(&scene.image), "masks_base64": encode(masks), "objects": objects, "model": "cup_stacking"})
+    };
+    let answer = post_json(&server, &request(&scene.masks, json!(scene.objects)));
+    assert_eq!(answer.status, 200, "{}", answer.body);
+    let small = png(64, 64, png::BitDepth::Eight, &[0u8; 64 * 64]);
+    let mut beyond = vec![0u8; 128 * 128];
+    beyond[0] = 3;
+    let beyond = png(128, 128, png::BitDepth::Eight, &beyond);
+    let seven = json!(["red cup", "blue cup", "green cup", "a", "b", "c", "d"]);
+    let cases: Vec<(&str, Value, &str)> = vec![
+        ("masks of another size", request(&small, json!(scene.objects)), "masks_size_mismatch"),
+        ("a label without a name", request(&beyond, json!(scene.objects[..1])), "unnamed_label"),
+        ("more objects than slots", request(&beyond, seven), "too_many_objects"),
+        ("masks that are not a PNG", request(b"GIF89a, not a PNG", json!(scene.objects)), "invalid_masks"),
+        ("an empty objects list", request(&scene.masks, json!([])), "invalid_objects"),
+        ("masks without objects", json!({"image_base64": encode(&scene.image), "masks_base64": encode(&scene.masks)}), "missing_field"),
+        ("neither prompt nor masks", json!({"image_base64": encode(&scene.image)}), "missing_field"),
+    ];
+    for (what, body, code) in cases {
+        let answer = post_json(&server, &body);
+        assert_eq!((answer.status, answer.body["error"]["code"].as_str()), (400, Some(code)), "{what}: {}", answer.body);
+    }
+    let (content_type, body) = masks_form(&scene.image, &scene.masks, &[("objects", "not json"), ("model", "cup_stacking")]);
+    let answer = post(&server.url("/v1/trajectories"), &content_type, &body);
+    assert_eq!((answer.status, answer.body["error"]["code"].as_str()), (400, Some("invalid_objects")), "{}", answer.body);
+}
+
+#[test]
+fn a_model_of_objects_outside_the_vocabulary_is_served_from_masks_and_refuses_prompts_clearly() {
+    // The example episodes, renamed into a task of the user's own: a block and a tray.
+    let dir = tempfile::tempdir().unwrap();
+    let raw = dir.path().join("raw");
+    common::copy_tree(&repo().join("datasets/examples/raw"), &raw);
+    for episode in std::fs::read_dir(&raw).unwrap().map(|e| e.unwrap().path()) {
+        let rename = |file: &str, from: &str, to: &str| {
+            let path = episode.join(file);
+            let text = std::fs::read_to_string(&path).unwrap().replace(from, to);
+            std::fs::write(&path, text).unwrap();
+        };
+        rename("objects.json", "goal marker", "tray");
+        rename("objects.json", "\"wall\"", "\"block\"");
+        for file in ["objects.json", "meta.json"] {
+            rename(file, "wall_avoidance", "block_on_tray");
+            rename(file, "reach the goal marker on the other side of the wall", "put the block on the tray");
+        }
+        let masks = episode.join("masks");
+        if masks.is_dir() {
+            std::fs::rename(masks.join("wall.png"), masks.join("block.png")).unwrap();
+            std::fs::rename(masks.join("goal marker.png"), masks.join("tray.png")).unwrap();
+        }
+    }
+    let dataset = dir.path().join("dataset");
+    let converted = cnfmp(&["dataset", "convert", "--from", &format!("raw:{}", raw.display()), "--out", arg(&dataset)]);
+    assert!(converted.status.success(), "{}", common::stderr(&converted));
+    let models = dir.path().join("models");
+    let config = dir.path().join("tiny.json");
+    std::fs::write(&config, common::TINY_CONFIG).unwrap();
+    let trained = cnfmp(&["train", "--dataset", arg(&dataset), "--out", arg(&models.join("block_on_tray")), "--config", arg(&config), "--steps", "10"]);
+    assert!(trained.status.success(), "{}", common::stderr(&trained));
+
+    let server = Server::start_with(&models, &[]);
+    let (_, text) = get(&server.url("/v1/models"));
+    let listed: Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(listed["models"][0]["objects"], json!(["block", "tray"]), "{listed}");
+    assert_eq!(listed["models"][0]["inputs"], json!(["masks"]), "{listed}");
+    let image = std::fs::read(raw.join("episode_000/image.png")).unwrap();
+    let masks = std::fs::read(raw.join("episode_000/masks.png")).unwrap();
+    let (content_type, body) = masks_form(&image, &masks, &[("objects", r#"["block", "tray"]"#)]);
+    let answer = post(&server.url("/v1/trajectories"), &content_type, &body);
+    assert_eq!(answer.status, 200, "{}", answer.body);
+    assert!(answer.body["frames"].as_array().unwrap().len() > 10);
+    let refused = post_form(&server, &image, &[("prompt", "put the block on the tray")]);
+    assert_eq!((refused.status, refused.body["error"]["code"].as_str()), (422, Some("not_promptable")), "{}", refused.body);
+    let message = refused.body["error"]["message"].as_str().unwrap();
+    for needed in ["block, tray", "masks", "objects", "clipseg"] {
+        assert!(message.contains(needed), "the 422 does not say {needed:?}: {message}");
+    }
 }

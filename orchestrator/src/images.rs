@@ -30,11 +30,23 @@ impl Image {
     }
 }
 
-/// Decodes any 8- or 16-bit PNG to 8 bits per channel; returns it with its colour type
-/// (grayscale, grayscale + alpha, RGB or RGBA; palettes expanded to RGB).
+/// Decodes any 8- or 16-bit PNG file to 8 bits per channel (see [`decode_bytes`]).
 fn decode(path: &Path) -> Result<(Image, ColorType), String> {
     let file = File::open(path).map_err(|err| format!("cannot open: {err}"))?;
-    let mut decoder = png::Decoder::new(BufReader::new(file));
+    decode_reader(BufReader::new(file))
+}
+
+/// Decodes PNG bytes to 8 bits per channel; returns the image with its colour type
+/// (grayscale, grayscale + alpha, RGB or RGBA; palettes expanded to RGB).
+fn decode_bytes(bytes: &[u8]) -> Result<(Image, ColorType), String> {
+    if !bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+        return Err("not a PNG file (its first bytes are not the PNG signature)".into());
+    }
+    decode_reader(std::io::Cursor::new(bytes))
+}
+
+fn decode_reader(source: impl std::io::BufRead + std::io::Seek) -> Result<(Image, ColorType), String> {
+    let mut decoder = png::Decoder::new(source);
     decoder.set_transformations(Transformations::normalize_to_color8());
     let mut reader = decoder.read_info().map_err(|err| format!("not a readable PNG: {err}"))?;
     let size = reader.output_buffer_size().ok_or("the PNG is too large to decode")?;
@@ -64,7 +76,15 @@ pub fn read_rgb(path: &Path) -> Result<Image, String> {
 
 /// Reads a label map: 8-bit grayscale, or RGB(A) whose three channels agree everywhere.
 pub fn read_label_map(path: &Path) -> Result<Image, String> {
-    let (image, colour) = decode(path)?;
+    label_map(decode(path)?)
+}
+
+/// A label map from PNG bytes (as [`read_label_map`]).
+pub fn label_map_from_png(bytes: &[u8]) -> Result<Image, String> {
+    label_map(decode_bytes(bytes)?)
+}
+
+fn label_map((image, colour): (Image, ColorType)) -> Result<Image, String> {
     let step = image.channels as usize;
     let pixels: Vec<u8> = match colour {
         ColorType::Grayscale => return Ok(image),
@@ -82,17 +102,28 @@ pub fn read_label_map(path: &Path) -> Result<Image, String> {
 
 /// Writes `image` (1 channel: grayscale, 3: RGB) as an 8-bit PNG.
 pub fn write_png(path: &Path, image: &Image) -> Result<(), String> {
+    let file = File::create(path).map_err(|err| format!("cannot create {}: {err}", path.display()))?;
+    encode(BufWriter::new(file), image).map_err(|err| format!("cannot write {}: {err}", path.display()))
+}
+
+/// `image` (1 channel: grayscale, 3: RGB) as 8-bit PNG bytes.
+pub fn png_bytes(image: &Image) -> Vec<u8> {
+    let mut out = Vec::new();
+    encode(&mut out, image).expect("an in-memory PNG of a 1- or 3-channel image encodes");
+    out
+}
+
+fn encode(sink: impl std::io::Write, image: &Image) -> Result<(), String> {
     let colour = match image.channels {
         1 => ColorType::Grayscale,
         3 => ColorType::Rgb,
         other => return Err(format!("cannot write a {other}-channel PNG")),
     };
-    let file = File::create(path).map_err(|err| format!("cannot create {}: {err}", path.display()))?;
-    let mut encoder = png::Encoder::new(BufWriter::new(file), image.width, image.height);
+    let mut encoder = png::Encoder::new(sink, image.width, image.height);
     encoder.set_color(colour);
     encoder.set_depth(BitDepth::Eight);
     encoder.set_compression(png::Compression::Fast);
-    let fail = |err: png::EncodingError| format!("cannot write {}: {err}", path.display());
+    let fail = |err: png::EncodingError| err.to_string();
     let mut writer = encoder.write_header().map_err(fail)?;
     writer.write_image_data(&image.pixels).map_err(fail)?;
     writer.finish().map_err(fail)

@@ -11,5 +11,6 @@ pub mod failure;
 pub mod files;
 pub mod images;
 pub mod progress;
+pub mod scene_masks;
 pub mod serve;
 pub mod trajectory;

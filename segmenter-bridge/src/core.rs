@@ -114,6 +114,9 @@ pub struct ModelDescription {
     pub objects: Vec<String>,
     /// Slots the model uses (labels beyond are background).
     pub task_objects: u32,
+    /// Scenes may hold more objects than the model's slots: those beyond `task_objects` are
+    /// taken as background (distractors).
+    pub takes_distractors: bool,
     pub parameters: u64,
     /// The prompt role filling each slot, or None when prompts cannot drive this task.
     pub roles: Option<Vec<String>>,

@@ -237,7 +237,12 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
     let t = &answer.timings_ms;
     let mut report = vec![
         format!("scene      {} seed {} (held-out), prompt {prompt:?}", args.task, args.seed),
-        format!("model      {} ({} objects found by the {} segmenter)", answer.model.name, answer.objects.iter().filter(|o| o.found).count(), answer.segmenter),
+        format!(
+            "model      {} ({} objects found {})",
+            answer.model.name,
+            answer.objects.iter().filter(|o| o.found).count(),
+            answer.segmenter.as_ref().map_or("in the given masks".into(), |backend| format!("by the {backend} segmenter"))
+        ),
     ];
     for object in &answer.objects {
         let fit = object.confidence.as_ref().and_then(|c| c.psnr_db).map(|p| format!(", fit {p:.1} dB")).unwrap_or_default();

@@ -17,6 +17,7 @@ use serde_json::{Map, Value};
 use super::print_stdout;
 use super::segment::{BackendArgs, describe, run_segmenter};
 use crate::failure::Failure;
+use crate::scene_masks::{self, CoarseMasks, MaskError};
 use crate::files::write_atomically;
 use crate::trajectory::Trajectory;
 use crate::trajectory::compare::mean_euclidean_distance_cm;
@@ -213,23 +214,13 @@ pub fn train(args: TrainArgs) -> Result<(), Failure> {
     print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))
 }
 
-/// Object names from an objects.json: `["a", "b"]` or `{"objects": ["a", "b"], ...}`.
-fn read_objects(path: &Path) -> Result<Vec<String>, Failure> {
-    let text = fs::read_to_string(path).map_err(|err| {
-        Failure::BadInput(format!("cannot read objects {}: {err}", path.display()))
-    })?;
-    let value: Value = serde_json::from_str(&text)
-        .map_err(|err| Failure::BadInput(format!("objects {}: not JSON: {err}", path.display())))?;
-    let list = match &value {
-        Value::Object(map) => map.get("objects").cloned().unwrap_or(Value::Null),
-        other => other.clone(),
-    };
-    serde_json::from_value::<Vec<String>>(list).map_err(|_| {
-        Failure::BadInput(format!(
-            "objects {}: expected a list of names or an object with an \"objects\" list",
-            path.display()
-        ))
-    })
+/// The coarse masks of `cnfmp predict --masks M --objects O`, checked against the image.
+fn read_masks(image: &[u8], masks: &Path, objects: &Path) -> Result<CoarseMasks, Failure> {
+    let bad = |path: &Path, err: MaskError| Failure::BadInput(format!("{}: {err}", path.display()));
+    let names = scene_masks::parse_objects_text(&read_bytes(objects, "objects")?).map_err(|err| bad(objects, err))?;
+    let size = scene_masks::image_size(image)
+        .ok_or_else(|| Failure::BadInput("the image is not in a format we read (PNG, JPEG, BMP, ...)".into()))?;
+    CoarseMasks::from_png(&read_bytes(masks, "masks")?, names, size).map_err(|err| bad(masks, err))
 }
 
 /// The task a model directory was trained on (its config.json's "task"; empty when the
@@ -275,8 +266,8 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
     let image = read_bytes(&args.image, "image")?;
     let (prediction, segmentation) = match (&args.masks, &args.objects, &args.prompt) {
         (Some(masks), Some(objects), None) => {
-            let (masks, objects) = (read_bytes(masks, "masks")?, read_objects(objects)?);
-            (Bridge::start_default()?.core_predict(&args.model, image, masks, objects)?, None)
+            let masks = read_masks(&image, masks, objects)?;
+            (Bridge::start_default()?.core_predict(&args.model, image, masks.png(), masks.objects)?, None)
         }
         (None, None, Some(prompt)) => {
             let task = model_task(&args.model)?;

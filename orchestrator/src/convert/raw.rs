@@ -19,6 +19,7 @@ use serde_json::Value;
 
 use super::{BadEpisode, SourceEpisode};
 use crate::images::{self, Image};
+use crate::scene_masks;
 use crate::trajectory::{Trajectory, csv};
 
 #[derive(Deserialize)]
@@ -122,21 +123,9 @@ fn png_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
     Ok(files)
 }
 
-/// objects.json: a list of names, or an object whose `objects` is one (`cnfmp sim render`).
 fn read_objects(path: &Path) -> Result<Vec<String>, String> {
-    let text = std::fs::read_to_string(path).map_err(|err| format!("cannot read: {err}"))?;
-    let value: Value = serde_json::from_str(&text).map_err(|err| format!("not valid JSON: {err}"))?;
-    let list = value.get("objects").unwrap_or(&value);
-    let names: Vec<String> = serde_json::from_value(list.clone()).map_err(|_| "must be a list of object names, or {\"objects\": [names]}".to_owned())?;
-    for (k, name) in names.iter().enumerate() {
-        if name.trim().is_empty() {
-            return Err(format!("object {k} has an empty name"));
-        }
-        if names[..k].contains(name) {
-            return Err(format!("object `{name}` is named twice"));
-        }
-    }
-    Ok(names)
+    let text = std::fs::read(path).map_err(|err| format!("cannot read: {err}"))?;
+    scene_masks::parse_objects_text(&text).map_err(|err| err.message)
 }
 
 /// The label map and object names, from masks.png + objects.json or masks/<object>.png.

@@ -15,9 +15,19 @@ pub struct TrajectoryJsonRequest {
     /// The scene image (PNG, JPEG, BMP, ...), base64-encoded (standard alphabet, padding optional).
     #[schema(min_length = 1)]
     pub image_base64: String,
-    /// What to do, naming the objects, e.g. "put the green cube on the paper".
+    /// What to do, naming the objects, e.g. "put the green cube on the paper". Needed unless
+    /// the coarse masks come with the request.
+    #[serde(default)]
     #[schema(min_length = 1, max_length = 1000, example = "put the green cube on the paper")]
-    pub prompt: String,
+    pub prompt: Option<String>,
+    /// The coarse masks instead of the segmenter's: an 8-bit label map PNG of the image's size
+    /// (0 background, k the k-th object, in the model's slot order), base64. Needs `objects`.
+    #[serde(default)]
+    pub masks_base64: Option<String>,
+    /// The names of the labelled objects, in label order (as `objects.json`).
+    #[serde(default)]
+    #[schema(example = json!(["block", "tray"]))]
+    pub objects: Option<Vec<String>>,
     /// Use the served model trained on this task (see `GET /v1/models`).
     #[serde(default)]
     #[schema(example = "language_pick_place")]
@@ -38,9 +48,16 @@ pub struct TrajectoryForm {
     /// The scene image file (PNG, JPEG, BMP, ...).
     #[schema(value_type = String, format = Binary)]
     pub image: Vec<u8>,
-    /// What to do, naming the objects.
+    /// What to do, naming the objects. Needed unless `masks` and `objects` are sent.
     #[schema(min_length = 1, max_length = 1000, example = "put the green cube on the paper")]
-    pub prompt: String,
+    pub prompt: Option<String>,
+    /// The coarse masks instead of the segmenter's: an 8-bit label map PNG of the image's size
+    /// (0 background, k the k-th object, in the model's slot order).
+    #[schema(value_type = Option<String>, format = Binary)]
+    pub masks: Option<Vec<u8>>,
+    /// The names of the labelled objects in label order, as a JSON list: `["block", "tray"]`.
+    #[schema(example = "[\"block\", \"tray\"]")]
+    pub objects: Option<String>,
     /// Use the served model trained on this task.
     #[schema(example = "language_pick_place")]
     pub task: Option<String>,
@@ -85,16 +102,19 @@ pub struct Confidence {
     pub mask_iou: Option<f64>,
 }
 
-/// One object phrase of the prompt: what the segmenter found and, for the phrases that fill
-/// the model's object slots, what the model inferred.
+/// One object phrase of the prompt (or one named object of the request's masks): what the
+/// segmenter found and, for the objects that fill the model's object slots, what the model
+/// inferred.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct DetectedObject {
-    /// The phrase as parsed from the prompt ("green cube").
+    /// The phrase as parsed from the prompt ("green cube"), or the object's given name.
     pub phrase: String,
     /// target | destination | obstacle | object | unknown.
     pub role: String,
+    /// The object has mask pixels.
     pub found: bool,
-    /// Mean mask probability in [0, 1] (the peak probability when nothing was found).
+    /// Mean mask probability in [0, 1] (the peak probability when nothing was found); 1 for
+    /// masks sent with the request.
     pub score: f64,
     /// Mask area (px).
     pub area: u64,
@@ -114,7 +134,7 @@ pub struct DetectedObject {
 pub struct StageTimings {
     /// Waiting for the Python worker.
     pub queue_ms: f64,
-    /// Prompt -> coarse masks (language segmenter).
+    /// Prompt -> coarse masks (language segmenter); 0 when the masks came with the request.
     pub segment_ms: f64,
     /// Latent inference and trajectory decoding (NF-MP core).
     pub infer_ms: f64,
@@ -130,14 +150,16 @@ pub struct TrajectoryResponse {
     pub fps: f64,
     pub frames: Vec<Frame>,
     pub model: ModelRef,
-    pub prompt: String,
-    /// The segmenter backend that found the objects.
-    pub segmenter: String,
+    /// The request's prompt, if it had one.
+    pub prompt: Option<String>,
+    /// The segmenter backend that found the objects; null when the masks came with the request.
+    pub segmenter: Option<String>,
     pub objects: Vec<DetectedObject>,
     /// Whole-image reconstruction PSNR (dB) of the model's scene field.
     pub scene_psnr_db: Option<f64>,
     pub timings_ms: StageTimings,
-    /// With `include_masks`: an 8-bit label map PNG (label k = the model's k-th slot), base64.
+    /// With `include_masks`: an 8-bit label map PNG (label k = the model's k-th slot, or the
+    /// request's k-th object), base64.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub masks_png_base64: Option<String>,
 }
@@ -154,6 +176,9 @@ pub struct ModelSummary {
     pub objects: Vec<String>,
     /// The prompt role filling each slot; null when prompts cannot drive this task yet.
     pub roles: Option<Vec<String>>,
+    /// What a request may give to find the objects: "prompt" (when there are roles) and
+    /// "masks" (always: `masks` + `objects`, labels in the slot order of `objects` above).
+    pub inputs: Vec<String>,
     /// Network parameters.
     pub parameters: u64,
     /// Rate (Hz) and length (s) of the trajectories it produces.

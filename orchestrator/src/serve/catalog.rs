@@ -17,6 +17,9 @@ use crate::failure::Failure;
 pub struct ServedModel {
     pub dir: PathBuf,
     pub summary: ModelSummary,
+    /// The model reads only its first slots and takes any further objects of a scene as
+    /// background (distractors); otherwise masks may name at most its slots.
+    pub takes_distractors: bool,
 }
 
 /// Every served model, in name order.
@@ -81,7 +84,7 @@ impl Catalog {
                 description.task,
                 description.parameters,
                 description.objects.join(", "),
-                if description.roles.is_some() { "" } else { "; no prompt roles, masks-only task" }
+                if description.roles.is_some() { "" } else { "; no prompt roles: served from masks" }
             );
             let summary = ModelSummary {
                 card: card_summary(&dir),
@@ -89,13 +92,14 @@ impl Catalog {
                 task: description.task,
                 model_type: description.model_type,
                 objects: description.objects.into_iter().take(description.task_objects as usize).collect(),
+                inputs: if description.roles.is_some() { vec!["prompt".into(), "masks".into()] } else { vec!["masks".into()] },
                 roles: description.roles,
                 parameters: description.parameters,
                 output_fps: description.output_fps,
                 duration_s: description.duration_s,
                 default: false,
             };
-            models.push(ServedModel { dir, summary });
+            models.push(ServedModel { dir, summary, takes_distractors: description.takes_distractors });
         }
         let default = match models.iter().position(|m| m.summary.name == default_model) {
             Some(index) => Some(index),

@@ -22,6 +22,7 @@ use super::catalog::{Catalog, ServedModel};
 use super::error::{ApiError, ErrorCode};
 use super::metrics::{Metrics, QueueGauges};
 use super::queue::{PythonQueue, Refused};
+use crate::scene_masks::{self, CoarseMasks, MaskError};
 use crate::trajectory::Trajectory;
 
 /// What the server accepts; requests beyond get a 4xx before any work is queued.
@@ -44,9 +45,25 @@ pub struct SegmenterChoice {
     pub weights: Option<std::path::PathBuf>,
 }
 
+/// How a request finds its objects.
+enum SceneObjects {
+    /// The segmenter finds the objects the prompt names.
+    Prompt(String),
+    /// The request carried the coarse masks.
+    Masks(CoarseMasks),
+}
+
+/// The coarse masks a request was answered with.
+enum FoundObjects {
+    /// Found by the segmenter from the prompt.
+    Segmented(Segmentation),
+    /// Sent with the request.
+    Given(CoarseMasks),
+}
+
 /// The result of the Python part of one request.
 pub struct PipelineOutput {
-    segmentation: Segmentation,
+    found: FoundObjects,
     prediction: Prediction,
     segment_s: f64,
     infer_s: f64,
@@ -115,22 +132,27 @@ async fn method_not_allowed() -> ApiError {
 /// A trajectory request, whichever way it came.
 struct TrajectoryInput {
     image: Vec<u8>,
-    prompt: String,
+    prompt: Option<String>,
+    /// A label map PNG and the names of its labels.
+    masks: Option<Vec<u8>>,
+    objects: Option<Vec<String>>,
     task: Option<String>,
     model: Option<String>,
     include_masks: bool,
 }
 
-/// Predict a trajectory from a scene image and a prompt.
+/// Predict a trajectory from a scene image and a prompt, or the image and its coarse masks.
 ///
 /// The prompt names the objects; the language segmenter finds them in the image, the
 /// phrases fill the model's object slots by role (e.g. target, destination), and the NF-MP
-/// core infers one latent per object and decodes the motion.
+/// core infers one latent per object and decodes the motion. A client with its own
+/// segmentation sends the masks (a label map PNG) and the object names instead, as
+/// `cnfmp predict --masks --objects` takes them: every served model accepts those.
 #[utoipa::path(
     post,
     path = "/v1/trajectories",
     request_body(
-        description = "The scene image and the prompt, as a form or as JSON.",
+        description = "The scene image and the prompt (or the coarse masks and object names), as a form or as JSON.",
         content(
             (TrajectoryForm = "multipart/form-data"),
             (TrajectoryJsonRequest = "application/json"),
@@ -138,11 +160,11 @@ struct TrajectoryInput {
     ),
     responses(
         (status = 200, description = "The trajectory, the objects found and inferred, and stage timings.", body = TrajectoryResponse),
-        (status = 400, description = "Malformed request: bad JSON or form, missing field, empty or overlong prompt, not an image.", body = ErrorResponse),
+        (status = 400, description = "Malformed request: bad JSON or form, missing field, empty or overlong prompt, not an image; masks that are not a label map PNG of the image's size, labels without a name, more objects than the model's slots.", body = ErrorResponse),
         (status = 404, description = "Unknown model or task.", body = ErrorResponse),
         (status = 413, description = "The body or the image is too large.", body = ErrorResponse),
         (status = 415, description = "Neither multipart/form-data nor application/json.", body = ErrorResponse),
-        (status = 422, description = "The prompt cannot drive the model: a needed object is not named, or not found in the image.", body = ErrorResponse),
+        (status = 422, description = "The prompt cannot drive the model: its objects have no prompt roles, or a needed object is not named or not found in the image. Send the masks instead.", body = ErrorResponse),
         (status = 500, description = "Internal failure (logged by the server).", body = ErrorResponse),
         (status = 503, description = "Too many requests are waiting; retry after the Retry-After header's seconds.", body = ErrorResponse,
             headers(("Retry-After" = u64, description = "Seconds to wait before retrying."))),
@@ -164,20 +186,11 @@ async fn create_trajectory(State(state): State<Shared>, request: Request) -> Res
 
 async fn answer_trajectory(state: &AppState, request: Request, started: Instant) -> Result<TrajectoryResponse, ApiError> {
     let input = read_input(request).await?;
-    let prompt = check_prompt(&input.prompt, state.limits.max_prompt_chars)?;
-    check_image(&input.image, state.limits.max_image_side)?;
+    let prompt = input.prompt.as_deref().map(|prompt| check_prompt(prompt, state.limits.max_prompt_chars)).transpose()?;
+    let size = check_image(&input.image, state.limits.max_image_side)?;
     let served = state.catalog.select(input.model.as_deref(), input.task.as_deref())?;
-    if served.summary.roles.is_none() {
-        return Err(ApiError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "not_promptable",
-            format!(
-                "prompts cannot drive {} models yet (no prompt roles for the task {}); use `cnfmp predict --masks` instead",
-                served.summary.name, served.summary.task
-            ),
-        ));
-    }
-    let job = pipeline_job(served, &state.segmenter, input.image, prompt.clone());
+    let objects = scene_objects(served, prompt.clone(), input.masks, input.objects, size)?;
+    let job = pipeline_job(served, &state.segmenter, input.image, objects);
     let receiver = state.queue.submit(job).map_err(|refused| match refused {
         Refused::Full { capacity, retry_after_s } => ApiError::overloaded(retry_after_s, capacity),
         Refused::Stopped => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "shutting_down", "the server is shutting down"),
@@ -200,29 +213,84 @@ async fn answer_trajectory(state: &AppState, request: Request, started: Instant)
     build_response(served, prompt, output, timings, input.include_masks)
 }
 
-/// The Python work of one request, run on the dispatcher thread: segment, then predict.
+/// How the request finds its objects: its masks when it sent them (checked against the image
+/// and the model's slots), else its prompt, when the model's task has prompt roles.
+fn scene_objects(
+    served: &ServedModel,
+    prompt: Option<String>,
+    masks: Option<Vec<u8>>,
+    objects: Option<Vec<String>>,
+    image_size: (u32, u32),
+) -> Result<SceneObjects, ApiError> {
+    let mask_error = |err: MaskError| ApiError::bad_request(err.code, err.message);
+    match (masks, objects, prompt) {
+        (Some(masks), Some(objects), _) => {
+            let objects = scene_masks::parse_objects(&serde_json::json!(objects)).map_err(mask_error)?;
+            let masks = CoarseMasks::from_png(&masks, objects, image_size).map_err(mask_error)?;
+            if !served.takes_distractors {
+                masks.check_slots(&served.summary.objects).map_err(mask_error)?;
+            }
+            Ok(SceneObjects::Masks(masks))
+        }
+        (Some(_), None, _) => Err(ApiError::bad_request(
+            "missing_field",
+            "masks need objects: the names of the labelled objects in label order, as a JSON list",
+        )),
+        (None, Some(_), _) => Err(ApiError::bad_request("missing_field", "objects were sent without masks; send both, or a prompt alone")),
+        (None, None, None) => Err(ApiError::bad_request(
+            "missing_field",
+            "the request has neither a prompt nor masks; send a prompt, or masks and objects",
+        )),
+        (None, None, Some(prompt)) if served.summary.roles.is_none() => Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "not_promptable",
+            format!(
+                "the prompt {prompt:?} cannot be grounded for the model {}: its objects ({}) have no prompt roles in the \
+                 segmenter's vocabulary (prompts/vocabulary.json, task {}). Send the coarse masks with the image \
+                 (form fields `masks` and `objects`, or JSON `masks_base64` and `objects`), or add the task's roles to \
+                 the vocabulary and serve with a backend whose local weights can find these objects (--backend clipseg \
+                 or owlv2-sam)",
+                served.summary.name,
+                served.summary.objects.join(", "),
+                served.summary.task
+            ),
+        )),
+        (None, None, Some(prompt)) => Ok(SceneObjects::Prompt(prompt)),
+    }
+}
+
+/// The Python work of one request, run on the dispatcher thread: segment (unless the masks
+/// came with the request), then predict.
 fn pipeline_job(
     served: &ServedModel,
     segmenter: &SegmenterChoice,
     image: Vec<u8>,
-    prompt: String,
+    objects: SceneObjects,
 ) -> impl FnOnce(&Bridge) -> PipelineResult + Send + 'static {
     let (dir, task, segmenter) = (served.dir.clone(), served.summary.task.clone(), segmenter.clone());
     move |bridge| {
         let segment_started = Instant::now();
-        let segmentation = bridge.segment(SegmentRequest {
-            image: image.clone(),
-            prompt,
-            backend: segmenter.backend,
-            weights: segmenter.weights,
-            task: Some(task),
-            pictures: false,
-        })?;
-        let segment_s = segment_started.elapsed().as_secs_f64();
+        let (labels_png, names, found) = match objects {
+            SceneObjects::Masks(masks) => (masks.png(), masks.objects.clone(), FoundObjects::Given(masks)),
+            SceneObjects::Prompt(prompt) => {
+                let found = bridge.segment(SegmentRequest {
+                    image: image.clone(),
+                    prompt,
+                    backend: segmenter.backend,
+                    weights: segmenter.weights,
+                    task: Some(task),
+                    pictures: false,
+                })?;
+                (found.labels_png.clone(), found.slot_names.clone(), FoundObjects::Segmented(found))
+            }
+        };
+        let segment_s = match found {
+            FoundObjects::Segmented(_) => segment_started.elapsed().as_secs_f64(),
+            FoundObjects::Given(_) => 0.0,
+        };
         let infer_started = Instant::now();
-        let prediction =
-            bridge.core_predict(&dir, image, segmentation.labels_png.clone(), segmentation.slot_names.clone())?;
-        Ok(PipelineOutput { segmentation, prediction, segment_s, infer_s: infer_started.elapsed().as_secs_f64() })
+        let prediction = bridge.core_predict(&dir, image, labels_png, names)?;
+        Ok(PipelineOutput { found, prediction, segment_s, infer_s: infer_started.elapsed().as_secs_f64() })
     }
 }
 
@@ -238,12 +306,12 @@ fn finite(value: Option<f64>) -> Option<f64> {
 
 fn build_response(
     served: &ServedModel,
-    prompt: String,
+    prompt: Option<String>,
     output: PipelineOutput,
     timings_ms: StageTimings,
     include_masks: bool,
 ) -> Result<TrajectoryResponse, ApiError> {
-    let PipelineOutput { segmentation, prediction, .. } = output;
+    let PipelineOutput { found, prediction, .. } = output;
     // The Rust trajectory checks (unit quaternions, increasing time, ...) guard the wire.
     let trajectory = Trajectory::from_json_str(&prediction.json).map_err(|err| {
         eprintln!("cnfmp serve: the model produced an invalid trajectory: {err}");
@@ -262,32 +330,70 @@ fn build_response(
             }
         })
         .collect();
-    let slots = segmentation.document.slots.clone().unwrap_or_default();
-    let objects = segmentation
-        .document
-        .objects
-        .iter()
-        .map(|found| {
-            let slot = slots.iter().find(|s| s.label == found.label).map(|s| s.slot);
-            let estimate = slot.and_then(|slot| prediction.objects.iter().find(|o| o.slot == slot));
-            DetectedObject {
-                phrase: found.phrase.clone(),
-                role: found.role.clone(),
-                found: found.found,
-                score: found.score,
-                area: found.area,
-                bbox: found.bbox,
-                centroid: found.centroid,
-                slot,
-                latent_weights: estimate.and_then(|e| e.weights.clone()),
-                confidence: estimate.filter(|e| e.present).map(|e| Confidence {
-                    reconstruction_mse: finite(e.reconstruction_mse),
-                    psnr_db: finite(e.psnr_db),
-                    mask_iou: finite(e.mask_iou),
-                }),
-            }
-        })
-        .collect();
+    let estimate = |slot: Option<u32>| slot.and_then(|slot| prediction.objects.iter().find(|o| o.slot == slot));
+    let inferred = |slot: Option<u32>| {
+        let estimate = estimate(slot);
+        let confidence = estimate.filter(|e| e.present).map(|e| Confidence {
+            reconstruction_mse: finite(e.reconstruction_mse),
+            psnr_db: finite(e.psnr_db),
+            mask_iou: finite(e.mask_iou),
+        });
+        (estimate.and_then(|e| e.weights.clone()), confidence)
+    };
+    let objects: Vec<DetectedObject> = match &found {
+        FoundObjects::Segmented(found) => {
+            let slots = found.document.slots.clone().unwrap_or_default();
+            found
+                .document
+                .objects
+                .iter()
+                .map(|object| {
+                    let slot = slots.iter().find(|s| s.label == object.label).map(|s| s.slot);
+                    let (latent_weights, confidence) = inferred(slot);
+                    DetectedObject {
+                        phrase: object.phrase.clone(),
+                        role: object.role.clone(),
+                        found: object.found,
+                        score: object.score,
+                        area: object.area,
+                        bbox: object.bbox,
+                        centroid: object.centroid,
+                        slot,
+                        latent_weights,
+                        confidence,
+                    }
+                })
+                .collect()
+        }
+        // Label k is the model's k-th slot, as for `cnfmp predict --masks`.
+        FoundObjects::Given(masks) => masks
+            .objects
+            .iter()
+            .enumerate()
+            .map(|(k, name)| {
+                let slot = Some(k as u32 + 1);
+                let region = masks.region(k as u8 + 1);
+                let (latent_weights, confidence) = inferred(slot);
+                let role = served.summary.roles.as_ref().and_then(|roles| roles.get(k).cloned());
+                DetectedObject {
+                    phrase: name.clone(),
+                    role: role.unwrap_or_else(|| "object".into()),
+                    found: region.is_some(),
+                    score: 1.0,
+                    area: region.map_or(0, |r| r.area),
+                    bbox: region.map(|r| r.bbox),
+                    centroid: region.map(|r| r.centroid),
+                    slot,
+                    latent_weights,
+                    confidence,
+                }
+            })
+            .collect(),
+    };
+    let (segmenter, masks_png) = match &found {
+        FoundObjects::Segmented(found) => (Some(found.document.backend.clone()), found.labels_png.clone()),
+        FoundObjects::Given(masks) => (None, masks.png()),
+    };
     Ok(TrajectoryResponse {
         fps: trajectory.fps,
         frames,
@@ -297,11 +403,11 @@ fn build_response(
             model_type: served.summary.model_type.clone(),
         },
         prompt,
-        segmenter: segmentation.document.backend.clone(),
+        segmenter,
         objects,
         scene_psnr_db: finite(prediction.scene_psnr_db),
         timings_ms,
-        masks_png_base64: include_masks.then(|| base64::engine::general_purpose::STANDARD.encode(&segmentation.labels_png)),
+        masks_png_base64: include_masks.then(|| base64::engine::general_purpose::STANDARD.encode(&masks_png)),
     })
 }
 
@@ -356,25 +462,30 @@ async fn read_json(request: Request) -> Result<TrajectoryInput, ApiError> {
         let location = if path == "." { String::new() } else { format!(" at {path}") };
         ApiError::bad_request(code, format!("{what}{location}: {inner}"))
     })?;
-    let image = BASE64.decode(request.image_base64.trim()).map_err(|err| {
-        ApiError::bad_request("invalid_base64", format!("image_base64 is not base64: {err}"))
-    })?;
+    let decode = |name: &str, text: &str| {
+        BASE64.decode(text.trim()).map_err(|err| ApiError::bad_request("invalid_base64", format!("{name} is not base64: {err}")))
+    };
+    let image = decode("image_base64", &request.image_base64)?;
+    let masks = request.masks_base64.as_deref().map(|text| decode("masks_base64", text)).transpose()?;
     Ok(TrajectoryInput {
         image,
         prompt: request.prompt,
+        masks,
+        objects: request.objects,
         task: request.task,
         model: request.model,
         include_masks: request.include_masks.unwrap_or(false),
     })
 }
 
-const FORM_FIELDS: &str = "image (file), prompt, and optionally task, model, include_masks";
+const FORM_FIELDS: &str = "image (file) with prompt, or with masks (file) and objects, and optionally task, model, include_masks";
 
 async fn read_form(request: Request) -> Result<TrajectoryInput, ApiError> {
     let mut form = Multipart::from_request(request, &())
         .await
         .map_err(|rejection| ApiError::bad_request("malformed_form", rejection.body_text()))?;
-    let (mut image, mut prompt, mut task, mut model, mut include_masks) = (None, None, None, None, None);
+    let (mut image, mut prompt, mut masks, mut objects) = (None, None, None, None);
+    let (mut task, mut model, mut include_masks) = (None, None, None);
     loop {
         let field = match form.next_field().await {
             Ok(Some(field)) => field,
@@ -385,6 +496,8 @@ async fn read_form(request: Request) -> Result<TrajectoryInput, ApiError> {
         let slot: &mut Option<Vec<u8>> = match name.as_str() {
             "image" => &mut image,
             "prompt" => &mut prompt,
+            "masks" => &mut masks,
+            "objects" => &mut objects,
             "task" => &mut task,
             "model" => &mut model,
             "include_masks" => &mut include_masks,
@@ -416,9 +529,14 @@ async fn read_form(request: Request) -> Result<TrajectoryInput, ApiError> {
             return Err(ApiError::bad_request("invalid_field", format!("include_masks must be true or false, not {other:?}")));
         }
     };
+    let objects = objects
+        .map(|json| scene_masks::parse_objects_text(&json).map_err(|err| ApiError::bad_request(err.code, err.message)))
+        .transpose()?;
     Ok(TrajectoryInput {
         image: image.ok_or_else(|| missing("image"))?,
-        prompt: text("prompt", prompt)?.ok_or_else(|| missing("prompt"))?,
+        prompt: text("prompt", prompt)?,
+        masks,
+        objects,
         task: text("task", task)?,
         model: text("model", model)?,
         include_masks,
@@ -457,7 +575,7 @@ fn check_prompt(prompt: &str, max_chars: usize) -> Result<String, ApiError> {
 /// Reads the image's size from its header (no decoding) and refuses what is not an image,
 /// has no pixels, or is too large, before any Python work is queued. A file that passes but
 /// is corrupt further in is caught when Python decodes it (400 `invalid_input`).
-fn check_image(image: &[u8], max_side: u32) -> Result<(), ApiError> {
+fn check_image(image: &[u8], max_side: u32) -> Result<(u32, u32), ApiError> {
     if image.is_empty() {
         return Err(ApiError::bad_request("invalid_image", "the image is empty"));
     }
@@ -473,7 +591,7 @@ fn check_image(image: &[u8], max_side: u32) -> Result<(), ApiError> {
             format!("the image is {}x{}; each side must be at most {max_side} px", size.width, size.height),
         ));
     }
-    Ok(())
+    Ok((size.width as u32, size.height as u32))
 }
 
 /// Liveness and load: models served, the segmenter in use, the queue.

@@ -103,7 +103,7 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
 def describe(model_dir: str) -> str:
     """Loads `model_dir` (it stays resident, so the first request does not pay for it) and
     describes it as JSON: ``{"task", "type", "objects": [slot names], "task_objects",
-    "parameters", "roles": [what fills each slot from a prompt, or null when prompts cannot
+    "takes_distractors" (objects beyond the task objects are background), "parameters", "roles": [what fills each slot from a prompt, or null when prompts cannot
     be mapped onto this task], "output_fps", "duration_s"}``."""
     from cnfmp.segmenter import phrases
 
@@ -115,6 +115,7 @@ def describe(model_dir: str) -> str:
     return json.dumps({
         "task": c.task, "type": c.model_type, "objects": list(c.object_names) if object_centric else [],
         "task_objects": (c.task_objects or c.num_objects) if object_centric else 0,
+        "takes_distractors": bool(object_centric and c.task_objects),
         "parameters": model.model.parameter_count(),
         "roles": roles, "output_fps": c.output_fps, "duration_s": c.duration_s,
     })
