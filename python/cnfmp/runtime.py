@@ -71,7 +71,14 @@ def configure(threads: int = 1) -> dict:
         # default: one seeded training step differed from run to run. Deterministic mode
         # costs nothing measurable here (60 training steps 4.0-4.6 s either way); warn_only
         # keeps an op without a deterministic kernel usable, with a warning.
-        torch.use_deterministic_algorithms(True, warn_only=True)
+        # `torch.use_deterministic_algorithms` also sets the compiler's (inductor's) flag, and
+        # importing its config imports torch._dynamo: 10-16 s of a cold `cnfmp predict` on a
+        # busy host. Nothing here is compiled, so only ATen's own flag is set.
+        set_aten_flag = getattr(torch._C, "_set_deterministic_algorithms", None)
+        if set_aten_flag is None:  # a torch without the private setter: pay the import
+            torch.use_deterministic_algorithms(True, warn_only=True)
+        else:
+            set_aten_flag(True, warn_only=True)
         try:
             torch.set_num_interop_threads(threads)
         except RuntimeError:

@@ -555,3 +555,53 @@ def test_after_training_settings_change_the_shipped_config_but_not_the_weights(d
     with pytest.raises(InputError, match="after_training may set only inference settings.*not steps"):
         training.train(dataset_dir, str(tmp_path / "bad"), str(tmp_path / "bad.json"), progress=False)
     assert not (tmp_path / "bad").exists()
+
+
+def test_inference_does_not_import_the_compiler_stack():
+    """A cold `cnfmp predict` must not pay for torch._dynamo (10-16 s on a busy host), which
+    any torch.optim optimiser imports when constructed (inference fits with its own Adam), as
+    does torch.use_deterministic_algorithms (the runtime sets ATen's flag alone)."""
+    import subprocess
+    import sys
+
+    script = f"""
+import sys
+import numpy as np, torch
+from cnfmp import runtime
+runtime.configure(threads=1)
+from cnfmp.core.configuration_cnfmp import CnfmpConfig
+from cnfmp.core.configuration_nfmp import NfmpConfig
+from cnfmp.core.inference import Predictor
+from cnfmp.core.modeling_cnfmp import CnfmpModel
+from cnfmp.core.modeling_nfmp import NfmpModel, Predictor as NfmpPredictor
+image = np.random.default_rng(0).integers(0, 255, (40, 48, 3), dtype=np.uint8)
+labels = np.zeros((40, 48), dtype=np.uint8)
+labels[5:15, 5:15], labels[20:30, 30:40] = 1, 2
+from cnfmp.core import data
+config = CnfmpConfig(**{TINY!r}, num_objects=2)
+inputs = data.scene_inputs(image, labels, 2, config.field_resolution, config.mask_dilation)
+Predictor(CnfmpModel(config, num_demos=2)).infer_scene(inputs)
+try:  # the fit runs first; an untrained model's motion does not decode to rotations
+    NfmpPredictor(NfmpModel(NfmpConfig(field_resolution=32, latent_dim=8, field_width=32, field_layers=2,
+                                       inference_steps=3), num_demos=2)).predict(image, labels)
+except ValueError:
+    pass
+print("dynamo" if "torch._dynamo" in sys.modules else "clean")
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "clean", "inference imported torch._dynamo"
+
+
+def test_the_inference_adam_steps_as_torch_adam_does():
+    from cnfmp.core.adam import Adam
+
+    target = torch.randn(4, 5, generator=torch.Generator().manual_seed(0))
+    ours, theirs = (torch.zeros(4, 5, requires_grad=True) for _ in range(2))
+    optimisers = [(ours, Adam(ours, lr=0.2)), (theirs, torch.optim.Adam([theirs], lr=0.2))]
+    for _ in range(30):
+        for param, optimiser in optimisers:
+            optimiser.zero_grad()
+            ((param - target) ** 4).sum().backward()
+            optimiser.step()
+    assert torch.equal(ours, theirs) and not torch.equal(ours, torch.zeros(4, 5))

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from cnfmp.core import data as core_data
+from cnfmp.core.adam import Adam
 from cnfmp.core.layers import pixel_coords
 from cnfmp.core.modeling_cnfmp import BakedAppearance, CnfmpModel, CoarseResidual
 from cnfmp.core.motion import decode_trajectory, output_times
@@ -167,14 +168,14 @@ class Predictor:
             lowest = torch.full((start.shape[0],), float("inf"))
             best_seen = searched.clone()
             start.requires_grad_(True)
-            optimiser = torch.optim.Adam([start], lr=c.refine_learning_rate)
+            optimiser = Adam(start, lr=c.refine_learning_rate)
             for _ in range(c.refine_steps):
                 per_start = self._object_loss(slot, start, *fitting, baked=baked, coarse=coarse)[0]
                 with torch.no_grad():  # the loss is of the iterate before this step
                     better = per_start < lowest
                     lowest = torch.where(better, per_start, lowest)
                     best_seen[better] = start[better]
-                optimiser.zero_grad(set_to_none=True)
+                optimiser.zero_grad()
                 per_start.sum().backward()
                 optimiser.step()
             # Adam's first steps have the size of the learning rate whatever the gradient, so

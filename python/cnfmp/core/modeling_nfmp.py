@@ -19,6 +19,7 @@ import torch
 from torch import nn
 
 from cnfmp.core import data as core_data
+from cnfmp.core.adam import Adam
 from cnfmp.core.configuration_nfmp import NfmpConfig
 from cnfmp.core.inference import psnr_db
 from cnfmp.core.layers import FilmMLP, encoded_size, fourier_features, pixel_coords, plain_mlp
@@ -134,11 +135,11 @@ class Predictor:
         pixels = torch.from_numpy(np.random.default_rng(seed).permutation(rgb.shape[0])[: c.inference_pixels])
         coords, target = self.coords[pixels][None], rgb[pixels][None]
         logits = torch.zeros(1, self.model.demo_latents.shape[0], requires_grad=True)
-        optimiser = torch.optim.Adam([logits], lr=c.inference_learning_rate)
+        optimiser = Adam(logits, lr=c.inference_learning_rate)
         for _ in range(c.inference_steps):
             latent = torch.softmax(logits, dim=-1) @ self.model.demo_latents
             loss = torch.mean((self.model.render(coords, latent) - target) ** 2)
-            optimiser.zero_grad(set_to_none=True)
+            optimiser.zero_grad()
             loss.backward()
             optimiser.step()
         with torch.no_grad():
