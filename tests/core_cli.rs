@@ -180,7 +180,7 @@ fn train_predict_eval_and_bad_inputs() {
     std::fs::write(&one_object, r#"["wall"]"#).unwrap();
     assert_bad_input(
         &predict(&model, &image, &masks, &one_object),
-        "names 1 object(s) but the masks use label 2",
+        "the masks use label 2 but the objects name 1 object(s)",
     );
     assert_bad_input(
         &predict(
