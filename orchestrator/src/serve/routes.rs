@@ -225,7 +225,6 @@ fn scene_objects(
     let mask_error = |err: MaskError| ApiError::bad_request(err.code, err.message);
     match (masks, objects, prompt) {
         (Some(masks), Some(objects), _) => {
-            let objects = scene_masks::parse_objects(&serde_json::json!(objects)).map_err(mask_error)?;
             let masks = CoarseMasks::from_png(&masks, objects, image_size).map_err(mask_error)?;
             if !served.takes_distractors {
                 masks.check_slots(&served.summary.objects).map_err(mask_error)?;
@@ -390,10 +389,17 @@ fn build_response(
             })
             .collect(),
     };
-    let (segmenter, masks_png) = match &found {
-        FoundObjects::Segmented(found) => (Some(found.document.backend.clone()), found.labels_png.clone()),
-        FoundObjects::Given(masks) => (None, masks.png()),
+    let segmenter = match &found {
+        FoundObjects::Segmented(found) => Some(found.document.backend.clone()),
+        FoundObjects::Given(_) => None,
     };
+    let masks_png_base64 = include_masks.then(|| {
+        let png = match &found {
+            FoundObjects::Segmented(found) => found.labels_png.clone(),
+            FoundObjects::Given(masks) => masks.png(),
+        };
+        base64::engine::general_purpose::STANDARD.encode(png)
+    });
     Ok(TrajectoryResponse {
         fps: trajectory.fps,
         frames,
@@ -407,7 +413,7 @@ fn build_response(
         objects,
         scene_psnr_db: finite(prediction.scene_psnr_db),
         timings_ms,
-        masks_png_base64: include_masks.then(|| base64::engine::general_purpose::STANDARD.encode(&masks_png)),
+        masks_png_base64,
     })
 }
 
@@ -471,7 +477,11 @@ async fn read_json(request: Request) -> Result<TrajectoryInput, ApiError> {
         image,
         prompt: request.prompt,
         masks,
-        objects: request.objects,
+        objects: request
+            .objects
+            .map(|names| scene_masks::parse_objects(&serde_json::json!(names)))
+            .transpose()
+            .map_err(|err| ApiError::bad_request(err.code, err.message))?,
         task: request.task,
         model: request.model,
         include_masks: request.include_masks.unwrap_or(false),
