@@ -1,8 +1,12 @@
 """Rotations and smooth motion on the Python side (quaternions are ``[w, x, y, z]``).
 
-The one place Python converts between quaternions, rotation matrices and rotation vectors;
-scipy does the algebra. Also builds smooth (minimum-jerk) paths through waypoints, which the
-scripted experts use.
+The one place Python converts between quaternions, rotation matrices and rotation vectors.
+The charts the models predict in (:func:`to_tangent`, :func:`to_swing_twist` and their
+inverses) are plain numpy quaternion algebra: they run on every prediction, and importing
+scipy's rotations (scipy.spatial with its trees and hulls) would cost a cold `cnfmp predict`
+over a second on a 2-core host. Everything else, used by the simulator and its scripted
+experts, is scipy's ``Rotation``/``Slerp``, imported on first use. Also builds smooth
+(minimum-jerk) paths through waypoints, which the scripted experts use.
 """
 
 from __future__ import annotations
@@ -10,34 +14,87 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 __all__ = ["Rotation", "Waypoint", "from_rotation", "from_swing_twist", "from_tangent", "min_jerk", "path_through",
            "quat_down", "tilt_from_vertical", "to_rotation", "to_swing_twist", "to_tangent", "yaw_of"]
 
 
-def to_rotation(quat_wxyz) -> Rotation:
+def __getattr__(name: str):
+    """``geometry.Rotation`` and ``geometry.Slerp``: scipy's, imported when first asked for."""
+    if name in ("Rotation", "Slerp"):
+        from scipy.spatial import transform
+
+        return getattr(transform, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def to_rotation(quat_wxyz):
     """``[w, x, y, z]`` (..., 4) -> scipy Rotation."""
+    from scipy.spatial.transform import Rotation
+
     q = np.asarray(quat_wxyz, dtype=np.float64)
     return Rotation.from_quat(q[..., [1, 2, 3, 0]])
 
 
-def from_rotation(rotation: Rotation) -> np.ndarray:
+def from_rotation(rotation) -> np.ndarray:
     """scipy Rotation -> ``[w, x, y, z]`` (..., 4) with w >= 0."""
     q = rotation.as_quat()[..., [3, 0, 1, 2]]
     return np.where(q[..., :1] < 0, -q, q)
+
+
+def _unit(quat_wxyz) -> np.ndarray:
+    """Normalised ``[w, x, y, z]`` (..., 4) with w >= 0 (q and -q are one rotation)."""
+    q = np.asarray(quat_wxyz, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def _multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of ``[w, x, y, z]`` quaternions (..., 4), broadcast: the rotation
+    `b` first, then `a`."""
+    aw, av = a[..., :1], a[..., 1:]
+    bw, bv = b[..., :1], b[..., 1:]
+    w = aw * bw - np.sum(av * bv, axis=-1, keepdims=True)
+    v = aw * bv + bw * av + np.cross(av, bv)
+    return np.concatenate([w, v], axis=-1)
+
+
+def _conjugate(q: np.ndarray) -> np.ndarray:
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def _exp(rotvec) -> np.ndarray:
+    """Rotation vectors (..., 3, rad) -> unit quaternions ``[w, x, y, z]`` (..., 4)."""
+    v = np.asarray(rotvec, dtype=np.float64)
+    angle = np.linalg.norm(v, axis=-1, keepdims=True)
+    # sin(angle/2)/angle, by its series where the division loses precision.
+    small = angle < 1e-4
+    scale = np.where(small, 0.5 - angle**2 / 48.0, np.sin(angle / 2) / np.where(small, 1.0, angle))
+    return np.concatenate([np.cos(angle / 2), scale * v], axis=-1)
+
+
+def _log(quat_wxyz) -> np.ndarray:
+    """Unit quaternions ``[w, x, y, z]`` (..., 4) -> rotation vectors (..., 3, rad), the
+    angle within [0, pi]."""
+    q = _unit(quat_wxyz)
+    sine = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)  # sin(angle/2)
+    angle = 2.0 * np.arctan2(sine, q[..., :1])
+    small = sine < 1e-6
+    # angle / sin(angle/2), by its series (2/w (1 + ...)) near the identity.
+    scale = np.where(small, 2.0 / q[..., :1], angle / np.where(small, 1.0, sine))
+    return scale * q[..., 1:]
 
 
 def to_tangent(quat_wxyz, reference_wxyz) -> np.ndarray:
     """Orientations ``[w, x, y, z]`` (..., 4) -> rotation vectors (..., 3, rad) in the tangent
     space at `reference_wxyz` (4,): ``omega = log(R_ref^T R)``, the rotation that takes the
     reference to R, expressed in the reference's frame (the models' rotation output)."""
-    return (to_rotation(reference_wxyz).inv() * to_rotation(quat_wxyz)).as_rotvec()
+    return _log(_multiply(_conjugate(_unit(reference_wxyz)), _unit(quat_wxyz)))
 
 
 def from_tangent(rotvec, reference_wxyz) -> np.ndarray:
     """Inverse of :func:`to_tangent`: ``R = R_ref exp(omega)`` as ``[w, x, y, z]`` (..., 4)."""
-    return from_rotation(to_rotation(reference_wxyz) * Rotation.from_rotvec(np.asarray(rotvec, float)))
+    return _unit(_multiply(_unit(reference_wxyz), _exp(rotvec)))
 
 
 def to_swing_twist(quat_wxyz, reference_wxyz) -> np.ndarray:
@@ -51,12 +108,10 @@ def to_swing_twist(quat_wxyz, reference_wxyz) -> np.ndarray:
     motion that is affine in its latents cannot read the tilt from one object and the turn
     from another exactly; in this chart both enter additively. Singular only for a swing of
     half a turn (fingers pointing back up), which no task comes near."""
-    relative = (to_rotation(reference_wxyz).inv() * to_rotation(quat_wxyz)).as_quat()  # x y z w
-    # q and -q are one rotation; w >= 0 keeps the twist in [-pi, pi].
-    relative = np.where(relative[..., 3:] < 0, -relative, relative)
-    twist = 2.0 * np.arctan2(relative[..., 2], relative[..., 3])
-    twist_rotation = Rotation.from_rotvec(twist[..., None] * np.array([0.0, 0.0, 1.0]))
-    swing = (Rotation.from_quat(relative) * twist_rotation.inv()).as_rotvec()
+    # w >= 0 (from _unit) keeps the twist in [-pi, pi].
+    relative = _unit(_multiply(_conjugate(_unit(reference_wxyz)), _unit(quat_wxyz)))
+    twist = 2.0 * np.arctan2(relative[..., 3], relative[..., 0])
+    swing = _log(_multiply(relative, _conjugate(_exp(twist[..., None] * np.array([0.0, 0.0, 1.0])))))
     return np.concatenate([swing[..., :2], twist[..., None]], axis=-1)
 
 
@@ -66,12 +121,14 @@ def from_swing_twist(swing_twist, reference_wxyz) -> np.ndarray:
     values = np.asarray(swing_twist, float)
     swing = np.concatenate([values[..., :2], np.zeros_like(values[..., :1])], axis=-1)
     twist = np.concatenate([np.zeros_like(values[..., :2]), values[..., 2:3]], axis=-1)
-    return from_rotation(to_rotation(reference_wxyz) * Rotation.from_rotvec(swing) * Rotation.from_rotvec(twist))
+    return _unit(_multiply(_multiply(_unit(reference_wxyz), _exp(swing)), _exp(twist)))
 
 
 def quat_down(yaw: float) -> np.ndarray:
     """Gripper pointing straight down (+z along the fingers = world -z), turned by `yaw`
     (rad) about world z; the fingers then close along world (-sin yaw, cos yaw)."""
+    from scipy.spatial.transform import Rotation
+
     return from_rotation(Rotation.from_euler("z", yaw) * Rotation.from_euler("x", np.pi))
 
 
@@ -110,6 +167,8 @@ def path_through(start: Waypoint, waypoints: list[Waypoint], hz: float) -> dict:
     geodesic, the gripper command changes linearly over the segment. Returns
     ``{"t": (T,), "position": (T, 3), "orientation": (T, 4) wxyz, "gripper": (T,)}``.
     """
+    from scipy.spatial.transform import Slerp
+
     times, positions, quats, grippers = [np.zeros(1)], [start.position[None]], [start.quat[None]], [np.array([start.gripper])]
     previous, t0 = start, 0.0
     for wp in waypoints:

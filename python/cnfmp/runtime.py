@@ -37,7 +37,9 @@ def configure(threads: int = 1) -> dict:
         threads: torch intra-op threads (and OpenMP/BLAS threads); >= 1.
 
     Returns:
-        ``{"threads": int, "torch_loaded": bool}`` describing what was applied.
+        ``{"threads": int, "torch_loaded": bool}``: torch_loaded says whether torch was
+        already imported (then configured at once); otherwise torch and OpenCV are configured
+        when first imported.
 
     Raises:
         ValueError: ``threads`` < 1, or a second call asks for a different count after
@@ -60,39 +62,73 @@ def configure(threads: int = 1) -> dict:
         # libgomp reads these when torch loads it, so they must be set before the import.
         os.environ.setdefault(key, str(threads))
 
-    torch_loaded = False
-    try:
-        import torch
-    except ImportError:
-        pass  # reported by the doctor; trajectory-only work does not need torch
-    else:
-        torch.set_num_threads(threads)
-        # Some CPU backward kernels (index accumulation) are not bitwise reproducible by
-        # default: one seeded training step differed from run to run. Deterministic mode
-        # costs nothing measurable here (60 training steps 4.0-4.6 s either way); warn_only
-        # keeps an op without a deterministic kernel usable, with a warning.
-        # `torch.use_deterministic_algorithms` also sets the compiler's (inductor's) flag, and
-        # importing its config imports torch._dynamo: 10-16 s of a cold `cnfmp predict` on a
-        # busy host. Nothing here is compiled, so only ATen's own flag is set.
-        set_aten_flag = getattr(torch._C, "_set_deterministic_algorithms", None)
-        if set_aten_flag is None:  # a torch without the private setter: pay the import
-            torch.use_deterministic_algorithms(True, warn_only=True)
-        else:
-            set_aten_flag(True, warn_only=True)
-        try:
-            torch.set_num_interop_threads(threads)
-        except RuntimeError:
-            pass  # already fixed by earlier parallel work in this process; doctor reports it
-        torch_loaded = True
-    try:
-        import cv2
-    except ImportError:
-        pass
-    else:
-        cv2.setNumThreads(threads)
-
     _configured_threads = threads
-    return {"threads": threads, "torch_loaded": torch_loaded}
+    # torch and OpenCV take seconds to import; a command that never needs them (rendering a
+    # scene, reading a dataset) must not pay for them, so each is configured when it loads.
+    for name, apply in (("torch", _configure_torch), ("cv2", _configure_cv2)):
+        if name in sys.modules:
+            apply(sys.modules[name])
+        else:
+            _AFTER_IMPORT[name] = apply
+    if _AFTER_IMPORT and not any(isinstance(f, _ConfigureOnImport) for f in sys.meta_path):
+        sys.meta_path.insert(0, _ConfigureOnImport())
+    return {"threads": threads, "torch_loaded": "torch" in sys.modules}
+
+
+def _configure_torch(torch) -> None:
+    """Thread pools and deterministic kernels, before torch runs any parallel work."""
+    torch.set_num_threads(_configured_threads)
+    set_aten_flag = getattr(torch._C, "_set_deterministic_algorithms", None)
+    if set_aten_flag is None:  # a torch without the private setter: pay the compiler-stack import
+        torch.use_deterministic_algorithms(True, warn_only=True)
+    else:
+        set_aten_flag(True, warn_only=True)
+    try:
+        torch.set_num_interop_threads(_configured_threads)
+    except RuntimeError:
+        pass  # already fixed by earlier parallel work in this process; doctor reports it
+
+
+def _configure_cv2(cv2) -> None:
+    cv2.setNumThreads(_configured_threads)
+
+
+#: Top-level module name -> what to apply to it right after its first import.
+_AFTER_IMPORT: dict = {}
+
+
+class _ConfigureOnImport:
+    """A meta-path hook that finds nothing itself: for a module in :data:`_AFTER_IMPORT` it
+    asks the other finders for the spec and makes that spec's loader apply the settings right
+    after the module's code ran, before the importer gets it back."""
+
+    def find_spec(self, name, path=None, target=None):
+        apply = _AFTER_IMPORT.get(name)
+        if apply is None:
+            return None
+        for finder in sys.meta_path:
+            if finder is self or not hasattr(finder, "find_spec"):
+                continue
+            spec = finder.find_spec(name, path, target)
+            if spec is not None:
+                break
+        else:
+            return None
+        if spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        run_module = spec.loader.exec_module
+
+        def exec_then_configure(module):
+            run_module(module)
+            # A package may import itself again while it loads (OpenCV swaps in its native
+            # module): the settings go to whichever load completes first, once.
+            if _AFTER_IMPORT.pop(name, None) is not None:
+                apply(module)
+
+        # The loader instance belongs to this one spec, so shadowing its method is local.
+        spec.loader.exec_module = exec_then_configure
+        return spec
+
 
 
 def choose_gl_backend() -> str:

