@@ -151,7 +151,8 @@ fn failed_write_keeps_the_existing_output() {
 
 #[test]
 fn doctor_reports_the_venv_and_pinned_stack() {
-    let output = cnfmp(&["doctor", "--json"]);
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/wall_avoidance");
+    let output = cnfmp(&["doctor", "--json", "--model", model.to_str().unwrap()]);
     assert!(output.status.success(), "doctor failed: {}\n{}", stderr(&output), String::from_utf8_lossy(&output.stdout));
     let report: Value = serde_json::from_slice(&output.stdout).unwrap();
     let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../.venv").canonicalize().unwrap();
@@ -165,6 +166,15 @@ fn doctor_reports_the_venv_and_pinned_stack() {
     let render = check("mujoco render");
     assert!(["egl", "osmesa"].contains(&render["backend"].as_str().unwrap()), "{render}");
     assert_eq!(check("bridge zero-copy")["ok"], true);
+    // The cold start, stage by stage, ends with the model's warm prediction.
+    let stages: Vec<&str> = report["startup"]["stages"].as_array().unwrap().iter().map(|s| s["name"].as_str().unwrap()).collect();
+    assert_eq!(stages.first(), Some(&"import numpy and torch"), "{stages:?}");
+    assert_eq!(stages.last(), Some(&"warm prediction"), "{stages:?}");
+    let total: f64 = report["startup"]["stages"].as_array().unwrap().iter().map(|s| s["ms"].as_f64().unwrap()).sum();
+    assert!(total > 0.0 && report["startup"]["process_ms"].as_f64().unwrap() >= total, "{}", report["startup"]);
+    let output = cnfmp(&["doctor", "--model", "no-such-model"]);
+    assert_eq!(output.status.code(), Some(2), "{}", stderr(&output));
+    assert!(stderr(&output).contains("not a model directory"), "{}", stderr(&output));
 }
 
 #[test]

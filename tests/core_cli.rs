@@ -197,6 +197,37 @@ fn train_predict_eval_and_bad_inputs() {
         "a failed predict leaves the earlier output alone"
     );
 
+    // Many scenes in one call: a scene folder like the one predicted above (the same
+    // trajectory), one with masks of the wrong size (reported, skipped, exit code 2).
+    let scenes = dir.path().join("scenes");
+    for (name, masks) in [("a", &masks), ("b", &small_masks)] {
+        std::fs::create_dir_all(scenes.join(name)).unwrap();
+        std::fs::copy(&image, scenes.join(name).join("image.png")).unwrap();
+        std::fs::copy(masks, scenes.join(name).join("masks.png")).unwrap();
+        std::fs::copy(&objects, scenes.join(name).join("objects.json")).unwrap();
+    }
+    let batch = dir.path().join("batch");
+    let predict_scenes = |scenes: &Path, out: &Path| cnfmp(&["predict", "--model", arg(&model), "--scenes", arg(scenes), "--out", arg(out)]);
+    let output = predict_scenes(&scenes, &batch);
+    assert_bad_input(&output, "1 of 2 scenes were not predicted (first b:");
+    let frames = |path: &Path| serde_json::from_str::<Value>(&std::fs::read_to_string(path).unwrap()).unwrap()["frames"].clone();
+    assert_eq!(frames(&batch.join("a.json")), predicted["frames"], "one process for many scenes predicts as one per scene");
+    assert!(!batch.join("b.json").exists());
+    let summary: Value = serde_json::from_str(&std::fs::read_to_string(batch.join("summary.json")).unwrap()).unwrap();
+    assert_eq!((summary["predicted"].as_u64(), summary["failed"].as_u64()), (Some(1), Some(1)), "{summary}");
+    assert!(summary["per_scene"][1]["error"].as_str().unwrap().contains("must have the same size"), "{summary}");
+    assert_bad_input(&predict_scenes(&scenes, &batch), "not an empty directory");
+    // A JSON lines file: paths relative to it, object names inline.
+    let lines = dir.path().join("scenes.jsonl");
+    std::fs::write(&lines, "{\"name\": \"x\", \"image\": \"scene/image.png\", \"masks\": \"scene/masks.png\", \"objects\": [\"wall\", \"goal marker\"]}\n\
+        {\"image\": \"scene/image.png\", \"masks\": \"scene/masks.png\", \"objects\": \"scene/objects.json\"}\n").unwrap();
+    let from_lines = dir.path().join("from-lines");
+    let output = predict_scenes(&lines, &from_lines);
+    assert!(output.status.success(), "{}", stderr(&output));
+    assert!(String::from_utf8_lossy(&output.stdout).contains("2 of 2 scenes predicted"), "{}", String::from_utf8_lossy(&output.stdout));
+    assert_eq!(frames(&from_lines.join("x.json")), predicted["frames"]);
+    assert_eq!(frames(&from_lines.join("scene-0002.json")), predicted["frames"]);
+
     let report = dir.path().join("eval.json");
     // `cnfmp eval` of the tiny model on wall_avoidance: `episodes` scenes from `seed_start`.
     let eval = |episodes: &str, seed_start: &str, more: &[&str]| {

@@ -16,12 +16,9 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Check the installation: embedded Python on the venv, torch, MuJoCo rendering, lerobot.
-    Doctor {
-        /// Print the report as JSON.
-        #[arg(long)]
-        json: bool,
-    },
+    /// Check the installation: embedded Python on the venv, torch, MuJoCo rendering, lerobot,
+    /// and what a cold start costs.
+    Doctor(commands::doctor::DoctorArgs),
     /// Inspect, resample or smooth trajectory JSON files.
     #[command(subcommand)]
     Trajectory(TrajectoryCommand),
@@ -55,7 +52,7 @@ enum Command {
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Doctor { json } => commands::doctor::run(json),
+        Command::Doctor(args) => commands::doctor::run(args),
         Command::Trajectory(command) => commands::trajectory::run(command),
         Command::Sim(command) => commands::sim::run(command),
         Command::Dataset(command) => commands::dataset::run(command),

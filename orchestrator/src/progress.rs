@@ -30,6 +30,17 @@ impl Progress {
         }
     }
 
+    /// Prints `message` on a line of its own (a scene that failed, say) without breaking the
+    /// progress line: on a terminal the line is cleared first and redrawn after.
+    pub fn note(&mut self, message: &str) {
+        let mut err = std::io::stderr().lock();
+        let _ = if self.terminal { writeln!(err, "\r\x1b[K{message}") } else { writeln!(err, "{message}") };
+        drop(err);
+        if self.terminal && self.last_draw.is_some() {
+            self.draw();
+        }
+    }
+
     fn draw(&mut self) {
         self.last_draw = Some(Instant::now());
         let line = self.line(self.start.elapsed());

@@ -167,6 +167,69 @@ def _render_check() -> dict:
     return check
 
 
+# Run in a fresh interpreter by :func:`startup_costs`: what a cold `cnfmp predict` pays, stage
+# by stage. The scene is synthetic (grey, one square per object slot): costs, not accuracy.
+_STARTUP_SCRIPT = """
+import json, sys, time
+began = time.perf_counter()
+from cnfmp import runtime
+runtime.configure(threads=1)
+stages, last = [], began
+def mark(name):
+    global last
+    now = time.perf_counter()
+    stages.append({"name": name, "ms": round(1000 * (now - last), 1)})
+    last = now
+import numpy as np
+import torch
+mark("import numpy and torch")
+from cnfmp.core import api
+from cnfmp.images import encode_png
+mark("import the inference path")
+from cnfmp.segmenter import api as segmenter_api
+segmenter_api.backend("auto")
+mark("load the prompt segmenter")
+model = sys.argv[1] if len(sys.argv) > 1 else None
+if model:
+    names = json.loads(api.describe(model))["objects"] or ["object 1", "object 2"]
+    mark("load the model")
+    image = np.full((120, 160, 3), 128, np.uint8)
+    labels = np.zeros((120, 160), np.uint8)
+    for k in range(len(names)):
+        x = 10 + 36 * (k % 4)
+        y = 20 + 50 * (k // 4)
+        image[y:y + 24, x:x + 24] = (60 * k % 256, 200, 90)
+        labels[y:y + 24, x:x + 24] = k + 1
+    scene = (encode_png(image), encode_png(labels), names)
+    api.predict(model, *scene)
+    mark("first prediction")
+    api.predict(model, *scene)
+    mark("warm prediction")
+print(json.dumps(stages))
+"""
+
+
+def startup_costs(model_dir: str | None = None) -> dict:
+    """Times a cold start in a fresh interpreter on this venv: importing numpy and torch, the
+    inference path, loading the prompt segmenter and, with `model_dir`, loading that model and
+    predicting a synthetic scene twice (first and warm).
+
+    Returns ``{"stages": [{"name", "ms"}], "process_ms": wall time of the whole child process
+    including interpreter start and exit}``, or ``{"error": str}`` when the child failed.
+    """
+    args = [sys.executable, "-c", _STARTUP_SCRIPT] + ([os.fspath(model_dir)] if model_dir else [])
+    started = time.perf_counter()
+    try:
+        proc = subprocess.run(args, capture_output=True, text=True, timeout=600)
+    except subprocess.TimeoutExpired:
+        return {"error": "the start-up probe took over 600 s"}
+    process_ms = round(1000 * (time.perf_counter() - started), 1)
+    if proc.returncode != 0:
+        lines = proc.stderr.strip().splitlines() or ["no output"]
+        return {"error": lines[-1]}
+    return {"stages": json.loads(proc.stdout.strip().splitlines()[-1]), "process_ms": process_ms}
+
+
 def collect() -> str:
     """Runs every check; returns ``{"checks": [...], "python": {...}}`` as a JSON string.
 

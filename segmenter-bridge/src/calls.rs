@@ -1,6 +1,8 @@
 //! Typed calls into the `cnfmp` Python package. Each method names the Python entry point it
 //! runs; arguments and results are plain Rust types, so no other crate touches pyo3.
 
+use std::path::Path;
+
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods};
 use pyo3::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -33,10 +35,36 @@ pub struct PythonInfo {
 }
 
 /// The whole environment report.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Eq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct DoctorReport {
     pub checks: Vec<DoctorCheck>,
     pub python: PythonInfo,
+    /// What a cold start costs ([`Bridge::startup_costs`]), when measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub startup: Option<StartupReport>,
+}
+
+/// One stage of a cold start and its wall time.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct StartupStage {
+    pub name: String,
+    pub ms: f64,
+}
+
+/// A cold start timed in a fresh interpreter (`cnfmp.doctor.startup_costs`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct StartupReport {
+    pub stages: Vec<StartupStage>,
+    /// Wall time of the whole probe process (ms), interpreter start and exit included.
+    pub process_ms: f64,
+}
+
+/// What `cnfmp.doctor.startup_costs` returns: the report, or why the probe failed.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum StartupOutcome {
+    Measured(StartupReport),
+    Failed { error: String },
 }
 
 impl DoctorReport {
@@ -64,6 +92,25 @@ impl Bridge {
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
         serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("doctor report: {err}")))
+    }
+
+    /// Times a cold start in a fresh interpreter on the venv (`cnfmp.doctor.startup_costs`):
+    /// imports, the prompt segmenter and, with `model_dir`, that model's load and first and
+    /// warm predictions of a synthetic scene. Takes about as long as a cold `cnfmp predict`.
+    /// Errors: [`BridgeError::InvalidInput`] with the probe's last error line when it failed.
+    pub fn startup_costs(&self, model_dir: Option<&Path>) -> Result<StartupReport, BridgeError> {
+        let model_dir = model_dir.map(Path::to_path_buf);
+        let json = self.call(move |py| {
+            let run = || -> PyResult<String> {
+                let report = py.import("cnfmp.doctor")?.call_method1("startup_costs", (model_dir,))?;
+                py.import("json")?.call_method1("dumps", (report,))?.extract()
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })?;
+        match serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("start-up report: {err}")))? {
+            StartupOutcome::Measured(report) => Ok(report),
+            StartupOutcome::Failed { error } => Err(BridgeError::InvalidInput(format!("the start-up probe failed: {error}"))),
+        }
     }
 
     /// Moves `values` (any shape) into a numpy array without copying, has Python double it in

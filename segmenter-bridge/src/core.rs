@@ -100,7 +100,8 @@ pub struct Prediction {
     /// Whole-image reconstruction PSNR (dB) at field resolution; None for models without a
     /// scene field (cnn-cnmp).
     pub scene_psnr_db: Option<f64>,
-    /// Stage timings (ms): decode_inputs, infer_latents, decode_trajectory, total.
+    /// Stage timings (ms): decode_inputs, load_model (near zero once resident), infer_latents,
+    /// decode_trajectory, total.
     pub timings_ms: serde_json::Map<String, serde_json::Value>,
 }
 

@@ -5,6 +5,7 @@ pub mod dataset;
 pub mod demo;
 pub mod doctor;
 pub mod model;
+pub mod scenes;
 pub mod segment;
 pub mod sim;
 pub mod trajectory;
