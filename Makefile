@@ -44,6 +44,7 @@ bench: setup  ## benchmarks that print figures (see docs/benchmarks.md)
 	bash scripts/bench-serve.sh
 	bash scripts/bench-convert.sh
 	bash scripts/bench-setup.sh
+	bash scripts/bench-startup.sh
 
 table1: setup  ## the paper's Table I on our benchmark: every method trained and evaluated (~1 h on 2 cores)
 	$(CNFMP) benchmark table1 --out reports
