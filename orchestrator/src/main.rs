@@ -36,7 +36,7 @@ enum Command {
     #[command(subcommand)]
     Segmenter(SegmenterCommand),
     /// Predict a trajectory from a scene image and its coarse masks, or from a prompt.
-    Predict(model::PredictArgs),
+    Predict(commands::predict::PredictArgs),
     /// Evaluate a model on held-out simulator scenes: MED against the expert and success by physics.
     Eval(model::EvalArgs),
     /// Serve the HTTP API: POST a scene image and a prompt to /v1/trajectories, get a trajectory.
@@ -59,7 +59,7 @@ fn main() {
         Command::Train(args) => model::train(args),
         Command::Segment(args) => commands::segment::segment(args),
         Command::Segmenter(command) => commands::segment::run(command),
-        Command::Predict(args) => model::predict(args),
+        Command::Predict(args) => commands::predict::predict(args),
         Command::Eval(args) => model::eval(args),
         Command::Serve(args) => cnfmp::serve::run(args),
         Command::Demo(args) => commands::demo::run(args),

@@ -21,7 +21,8 @@ use segmenter_bridge::Bridge;
 use serde::Serialize;
 use serde_json::{Map, Value};
 
-use super::model::{FIRST_HELDOUT_SEED, command_line};
+use super::seeds::FIRST_HELDOUT_SEED;
+use super::shared::command_line;
 use super::print_stdout;
 use crate::failure::Failure;
 use crate::files::write_atomically;

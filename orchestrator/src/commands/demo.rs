@@ -15,7 +15,7 @@ use clap::Args;
 use segmenter_bridge::Bridge;
 use serde_json::{Map, Value};
 
-use super::model::{FIRST_HELDOUT_SEED, heldout_seed_range};
+use super::seeds::{FIRST_HELDOUT_SEED, heldout_seed_range};
 use super::print_stdout;
 use crate::failure::Failure;
 use crate::files::write_atomically;

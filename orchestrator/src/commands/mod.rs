@@ -1,12 +1,18 @@
-//! One module per top-level `cnfmp` subcommand; each exposes `run(args) -> Result<(), Failure>`.
+//! One module per top-level `cnfmp` subcommand, each exposing its entry point, and the pieces
+//! several of them share: `scenes` (batch inputs), `seeds` (seed ranges), `shared` (model
+//! directories, input files), `stats` (summary statistics).
 
 pub mod benchmark;
 pub mod dataset;
 pub mod demo;
 pub mod doctor;
 pub mod model;
+pub mod predict;
 pub mod scenes;
+pub mod seeds;
 pub mod segment;
+pub mod shared;
+pub mod stats;
 pub mod sim;
 pub mod trajectory;
 

@@ -10,7 +10,8 @@ use std::path::{Path, PathBuf};
 use clap::{Args, Subcommand};
 use segmenter_bridge::{Bridge, SegmentRequest, Segmentation, SegmenterTrainRequest};
 
-use super::model::{FIRST_HELDOUT_SEED, check_training_outputs, command_line, heldout_seed_range};
+use super::seeds::{FIRST_HELDOUT_SEED, heldout_seed_range};
+use super::shared::{check_training_outputs, command_line};
 use super::print_stdout;
 use crate::failure::Failure;
 use crate::files::{write_atomically, write_directory_atomically};
