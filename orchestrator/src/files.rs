@@ -32,14 +32,27 @@ pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), Failure> {
     Ok(())
 }
 
+/// Refuses an output directory that would mix with earlier results: `path` must not exist, or
+/// be an empty directory.
+pub fn require_new_or_empty_dir(path: &Path) -> Result<(), Failure> {
+    let occupied = path.exists()
+        && (!path.is_dir()
+            || std::fs::read_dir(path)
+                .map_err(|err| Failure::BadInput(format!("cannot read {}: {err}", path.display())))?
+                .next()
+                .is_some());
+    if occupied {
+        return Err(Failure::BadInput(format!("{} already exists and is not an empty directory; choose a new --out", path.display())));
+    }
+    Ok(())
+}
+
 /// Creates the directory `path` (which must not exist, or be empty) holding `files` (name,
 /// contents): written into a hidden sibling, then renamed, so the directory appears complete
 /// or not at all.
 pub fn write_directory_atomically(path: &Path, files: &[(String, Vec<u8>)]) -> Result<(), Failure> {
     let fail = |what: &str, err: std::io::Error| Failure::BadInput(format!("cannot {what} {}: {err}", path.display()));
-    if path.exists() && (!path.is_dir() || std::fs::read_dir(path).map_err(|err| fail("read", err))?.next().is_some()) {
-        return Err(Failure::BadInput(format!("{} already exists and is not an empty directory; choose a new --out", path.display())));
-    }
+    require_new_or_empty_dir(path)?;
     let parent = match path.parent() {
         Some(dir) if !dir.as_os_str().is_empty() => dir,
         _ => Path::new("."),

@@ -35,6 +35,11 @@ pub fn parse_objects(value: &Value) -> Result<Vec<String>, MaskError> {
     let names: Vec<String> = serde_json::from_value(list.clone()).map_err(|_| {
         MaskError::new("invalid_objects", "the objects must be a JSON list of names, or {\"objects\": [names]}")
     })?;
+    check_names(names)
+}
+
+/// `names` when they can name a label map's objects: at least one, each non-empty, no two alike.
+pub fn check_names(names: Vec<String>) -> Result<Vec<String>, MaskError> {
     if names.is_empty() {
         return Err(MaskError::new("invalid_objects", "the objects list is empty; name every labelled object in label order"));
     }

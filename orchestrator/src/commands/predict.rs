@@ -17,7 +17,7 @@ use super::segment::{BackendArgs, describe, run_segmenter};
 use super::shared::{model_task, read_bytes, trajectory_of};
 use super::stats::quantile;
 use crate::failure::Failure;
-use crate::files::write_atomically;
+use crate::files::{require_new_or_empty_dir, write_atomically};
 use crate::progress::Progress;
 use crate::scene_masks::{self, CoarseMasks};
 use crate::trajectory::Trajectory;
@@ -65,7 +65,7 @@ fn read_masks(image: &[u8], masks: &Path, names: &ObjectNames) -> Result<CoarseM
     let names = match names {
         ObjectNames::File(path) => scene_masks::parse_objects_text(&read_bytes(path, "objects")?)
             .map_err(|err| Failure::BadInput(format!("{}: {err}", path.display())))?,
-        ObjectNames::Listed(names) => scene_masks::parse_objects(&Value::from(names.clone()))
+        ObjectNames::Listed(names) => scene_masks::check_names(names.clone())
             .map_err(|err| Failure::BadInput(format!("objects: {err}")))?,
     };
     CoarseMasks::from_png(&read_bytes(masks, "masks")?, names, size)
@@ -94,10 +94,10 @@ struct PredictedScene {
     segmentation: Option<Segmentation>,
 }
 
-/// Predicts one scene with the resident model: masks as given, or the prompt segmented first.
-/// Bad input (an unreadable image, masks of another size, a prompt the segmenter cannot
-/// ground) is a `Failure::BadInput` naming it.
-fn predict_scene(bridge: &Bridge, model: &Path, scene: &SceneInput, backend: &BackendArgs) -> Result<PredictedScene, Failure> {
+/// Predicts one scene with the resident model of `task`: masks as given, or the prompt
+/// segmented first. Bad input (an unreadable image, masks of another size, a prompt the
+/// segmenter cannot ground) is a `Failure::BadInput` naming it.
+fn predict_scene(bridge: &Bridge, model: &Path, task: &str, scene: &SceneInput, backend: &BackendArgs) -> Result<PredictedScene, Failure> {
     let image = read_bytes(&scene.image, "image")?;
     let (prediction, segmentation) = match &scene.objects {
         SceneObjects::Masks { masks, names } => {
@@ -105,8 +105,7 @@ fn predict_scene(bridge: &Bridge, model: &Path, scene: &SceneInput, backend: &Ba
             (bridge.core_predict(model, image, masks.png(), masks.objects)?, None)
         }
         SceneObjects::Prompt(prompt) => {
-            let task = model_task(model)?;
-            let found = run_segmenter(bridge, image.clone(), prompt, backend, Some(&task), false)?;
+            let found = run_segmenter(bridge, image.clone(), prompt, backend, Some(task), false)?;
             let prediction = bridge.core_predict(model, image, found.labels_png.clone(), found.slot_names.clone())?;
             (prediction, Some(found))
         }
@@ -134,7 +133,8 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
         _ => return Err(Failure::BadInput("give --image with --masks and --objects, or --image with --prompt, or --scenes".into())),
     };
     let scene = SceneInput { name: args.out.display().to_string(), image, objects };
-    let done = predict_scene(Bridge::start_default()?, &args.model, &scene, &args.segmenter)?;
+    let task = model_task(&args.model)?;
+    let done = predict_scene(Bridge::start_default()?, &args.model, &task, &scene, &args.segmenter)?;
     if let Some(found) = &done.segmentation {
         eprintln!("segmented by {}:\n{}", found.document.backend, describe(found));
     }
@@ -192,9 +192,8 @@ struct ScenesSummary {
 fn predict_scenes(model: &Path, scenes: &Path, backend: &BackendArgs, out: &Path) -> Result<(), Failure> {
     let started = Instant::now();
     let scenes = list_scenes(scenes)?;
-    if out.exists() && (!out.is_dir() || fs::read_dir(out).map_or(true, |mut entries| entries.next().is_some())) {
-        return Err(Failure::BadInput(format!("{} already exists and is not an empty directory; choose a new --out", out.display())));
-    }
+    let task = model_task(model)?;
+    require_new_or_empty_dir(out)?;
     fs::create_dir_all(out).map_err(|err| Failure::BadInput(format!("cannot create {}: {err}", out.display())))?;
     let bridge = Bridge::start_default()?;
     let loop_started = Instant::now();
@@ -203,7 +202,7 @@ fn predict_scenes(model: &Path, scenes: &Path, backend: &BackendArgs, out: &Path
     let mut outcome = Ok(());
     for scene in &scenes {
         let call = Instant::now();
-        let predicted = predict_scene(bridge, model, scene, backend).and_then(|done| {
+        let predicted = predict_scene(bridge, model, &task, scene, backend).and_then(|done| {
             write_atomically(&out.join(format!("{}.json", scene.name)), done.trajectory.to_json_string().as_bytes())?;
             Ok(done)
         });

@@ -479,7 +479,7 @@ async fn read_json(request: Request) -> Result<TrajectoryInput, ApiError> {
         masks,
         objects: request
             .objects
-            .map(|names| scene_masks::parse_objects(&serde_json::json!(names)))
+            .map(scene_masks::check_names)
             .transpose()
             .map_err(|err| ApiError::bad_request(err.code, err.message))?,
         task: request.task,
