@@ -76,3 +76,17 @@ pub fn write_directory_atomically(path: &Path, files: &[(String, Vec<u8>)]) -> R
     std::fs::rename(staging.keep(), path).map_err(|err| fail("create", err))?;
     Ok(())
 }
+
+/// A bad-input failure unless `path` is an existing file; `what` names it in the message.
+pub fn require_file(path: &Path, what: &str) -> Result<(), Failure> {
+    if path.is_file() {
+        Ok(())
+    } else {
+        Err(Failure::BadInput(format!("{what} {} does not exist or is not a file", path.display())))
+    }
+}
+
+/// The bytes of the input file `path`; `what` names it in the error.
+pub fn read_bytes(path: &Path, what: &str) -> Result<Vec<u8>, Failure> {
+    std::fs::read(path).map_err(|err| Failure::BadInput(format!("cannot read {what} {}: {err}", path.display())))
+}

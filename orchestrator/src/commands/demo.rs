@@ -15,7 +15,7 @@ use clap::Args;
 use segmenter_bridge::Bridge;
 use serde_json::{Map, Value};
 
-use super::seeds::{FIRST_HELDOUT_SEED, heldout_seed_range};
+use crate::seeds::{first_heldout_seed, heldout_seed_range};
 use super::print_stdout;
 use crate::failure::Failure;
 use crate::files::write_atomically;
@@ -34,7 +34,7 @@ pub struct DemoArgs {
     #[arg(long, default_value = "language_pick_place")]
     task: String,
     /// Held-out scene seed (1000000..=1999999).
-    #[arg(long, default_value_t = FIRST_HELDOUT_SEED + 3)]
+    #[arg(long, default_value_t = first_heldout_seed() + 3)]
     seed: u64,
     /// The prompt to send (default: the scene's own instruction).
     #[arg(long)]

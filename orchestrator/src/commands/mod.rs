@@ -1,6 +1,6 @@
 //! One module per top-level `cnfmp` subcommand, each exposing its entry point, and the pieces
-//! several of them share: `scenes` (batch inputs), `seeds` (seed ranges), `shared` (model
-//! directories, input files), `stats` (summary statistics).
+//! several of them share: `scenes` (batch inputs), `shared` (the command line, a prediction's
+//! trajectory), `stats` (summary statistics).
 
 pub mod benchmark;
 pub mod dataset;
@@ -9,7 +9,6 @@ pub mod doctor;
 pub mod model;
 pub mod predict;
 pub mod scenes;
-pub mod seeds;
 pub mod segment;
 pub mod shared;
 pub mod stats;

@@ -14,9 +14,11 @@ use serde::Serialize;
 use serde_json::{Map, Value};
 
 use super::print_stdout;
-use super::seeds::{FIRST_HELDOUT_SEED, heldout_seed_range, validation_seed_range};
-use super::segment::{BackendArgs, run_segmenter};
-use super::shared::{check_training_outputs, command_line, model_task, read_bytes, trajectory_of};
+use crate::seeds::{first_heldout_seed, heldout_seed_range, validation_seed_range};
+use crate::segmentation::{BackendArgs, run_segmenter};
+use super::shared::{command_line, trajectory_of};
+use crate::files::read_bytes;
+use crate::model_dir::{check_training_outputs, model_task};
 use super::stats::{mean, quantile, wilson_interval_95};
 use crate::failure::Failure;
 use crate::files::write_atomically;
@@ -66,7 +68,7 @@ pub struct EvalArgs {
     episodes: u64,
     /// First scene seed; scenes use consecutive seeds, all held-out (1000000..=1999999), or
     /// all validation scenes (500000..=999999) with --validation.
-    #[arg(long, default_value_t = FIRST_HELDOUT_SEED)]
+    #[arg(long, default_value_t = first_heldout_seed())]
     seed_start: u64,
     /// Evaluate on validation scenes instead (give --seed-start too): training-range seeds no
     /// demonstration uses (500000..=999999), for choosing a recipe or setting without

@@ -13,8 +13,10 @@ use serde_json::{Map, Value};
 
 use super::print_stdout;
 use super::scenes::{ObjectNames, SUMMARY_FILE, SceneInput, SceneObjects, list_scenes};
-use super::segment::{BackendArgs, describe, run_segmenter};
-use super::shared::{model_task, read_bytes, trajectory_of};
+use crate::segmentation::{BackendArgs, describe, run_segmenter};
+use super::shared::trajectory_of;
+use crate::files::read_bytes;
+use crate::model_dir::model_task;
 use super::stats::quantile;
 use crate::failure::Failure;
 use crate::files::{require_new_or_empty_dir, write_atomically};

@@ -8,29 +8,15 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use clap::{Args, Subcommand};
-use segmenter_bridge::{Bridge, SegmentRequest, Segmentation, SegmenterTrainRequest};
+use segmenter_bridge::{Bridge, SegmenterTrainRequest};
 
-use super::seeds::{FIRST_HELDOUT_SEED, heldout_seed_range};
-use super::shared::{check_training_outputs, command_line};
+use crate::seeds::{first_heldout_seed, heldout_seed_range};
+use super::shared::command_line;
+use crate::model_dir::check_training_outputs;
+use crate::segmentation::{BackendArgs, describe, run_segmenter};
 use super::print_stdout;
 use crate::failure::Failure;
 use crate::files::{write_atomically, write_directory_atomically};
-
-/// Backends `--backend` accepts.
-pub const BACKENDS: [&str; 5] = ["auto", "film", "clipseg", "owlv2-sam", "color"];
-
-/// Which segmenter grounds the prompt.
-#[derive(Debug, Clone, Args)]
-pub struct BackendArgs {
-    /// auto (film if its checkpoint loads, else clipseg if $CNFMP_CLIPSEG_DIR is set, else
-    /// color), film, clipseg, owlv2-sam (slow on CPU) or color (HSV heuristic, no weights).
-    #[arg(long, default_value = "auto", value_parser = clap::builder::PossibleValuesParser::new(BACKENDS))]
-    pub backend: String,
-    /// Weights directory of the backend (film: models/segmenter; clipseg: a CIDAS/clipseg-rd64-refined
-    /// download; owlv2-sam: a directory holding owlv2/ and sam/). Never downloaded.
-    #[arg(long)]
-    pub weights: Option<PathBuf>,
-}
 
 #[derive(Debug, Args)]
 pub struct SegmentArgs {
@@ -86,7 +72,7 @@ pub struct SegmenterEvalArgs {
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000))]
     episodes: u64,
     /// First scene seed; all scenes must be held-out (1000000..=1999999).
-    #[arg(long, default_value_t = FIRST_HELDOUT_SEED)]
+    #[arg(long, default_value_t = first_heldout_seed())]
     seed_start: u64,
     #[command(flatten)]
     backend: BackendArgs,
@@ -97,42 +83,6 @@ pub struct SegmenterEvalArgs {
 
 pub(crate) fn read_image(path: &Path) -> Result<Vec<u8>, Failure> {
     fs::read(path).map_err(|err| Failure::BadInput(format!("cannot read image {}: {err}", path.display())))
-}
-
-/// Segments `image` for `prompt`; with `task`, the label map is ordered for that task's
-/// models; with `pictures`, the per-phrase masks and the overlay are encoded too.
-pub(crate) fn run_segmenter(
-    bridge: &Bridge,
-    image: Vec<u8>,
-    prompt: &str,
-    backend: &BackendArgs,
-    task: Option<&str>,
-    pictures: bool,
-) -> Result<Segmentation, Failure> {
-    Ok(bridge.segment(SegmentRequest {
-        image,
-        prompt: prompt.to_owned(),
-        backend: backend.backend.clone(),
-        weights: backend.weights.clone(),
-        task: task.map(str::to_owned),
-        pictures,
-    })?)
-}
-
-/// One line per phrase: what was found, where, how sure.
-pub(crate) fn describe(segmentation: &Segmentation) -> String {
-    segmentation
-        .document
-        .objects
-        .iter()
-        .map(|o| match (o.found, o.bbox) {
-            (true, Some([x0, y0, x1, y1])) => {
-                format!("  {}: {:?} ({}) found, score {:.2}, {} px, box [{x0}, {y0}, {x1}, {y1})", o.label, o.phrase, o.role, o.score, o.area)
-            }
-            _ => format!("  {}: {:?} ({}) NOT FOUND (best score {:.2})", o.label, o.phrase, o.role, o.score),
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
 }
 
 pub fn segment(args: SegmentArgs) -> Result<(), Failure> {

@@ -10,7 +10,8 @@ use segmenter_bridge::{Bridge, BridgeError};
 use serde_json::Map;
 
 use super::staging::{Staging, stage_all};
-use super::{BadEpisode, ConvertOptions, ConvertReport, EpisodeError, Plan, Target, finish_report, no_episode_converted};
+use super::episode::{BadEpisode, EpisodeError};
+use super::job::{ConvertOptions, ConvertReport, Plan, Target, finish_report, no_episode_converted};
 use crate::failure::Failure;
 use crate::trajectory::Trajectory;
 

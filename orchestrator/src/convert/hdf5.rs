@@ -8,7 +8,7 @@ use segmenter_bridge::{Bridge, BridgeError, Hdf5Listing, TrajectoryArrays};
 use segmenter_bridge::ndarray::{Array1, Axis};
 use serde_json::Map;
 
-use super::{BadEpisode, EpisodeError, SourceEpisode};
+use super::episode::{BadEpisode, EpisodeError, SourceEpisode};
 use crate::images::Image;
 use crate::trajectory::Trajectory;
 

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 use serde_json::Value;
 
-use super::{BadEpisode, SourceEpisode};
+use super::episode::{BadEpisode, SourceEpisode};
 use crate::images::{self, Image};
 use crate::scene_masks;
 use crate::trajectory::{Trajectory, csv};

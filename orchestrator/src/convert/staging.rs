@@ -14,25 +14,12 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc;
 
-use serde::{Deserialize, Serialize};
-
-use super::{ConvertReport, EpisodeError, REPORT_FILE, Target};
+use super::episode::EpisodeError;
+use super::job::{ConvertReport, Plan, REPORT_FILE};
 use crate::failure::Failure;
 use crate::files::write_atomically;
 use crate::progress::Progress;
 use segmenter_bridge::SkippedEpisode;
-
-/// What a conversion does; stored so that a rerun resumes only the same conversion.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Plan {
-    /// `format:absolute-path` of the source.
-    pub source: String,
-    pub to: Target,
-    /// Dataset frame rate (Hz).
-    pub fps: u32,
-    /// Source episode names, in output order.
-    pub episodes: Vec<String>,
-}
 
 /// An open, locked staging area.
 pub struct Staging {

@@ -9,7 +9,7 @@ use segmenter_bridge::{Bridge, ModelDescription};
 
 use super::api::ModelSummary;
 use super::error::ApiError;
-use crate::commands::shared::model_task;
+use crate::model_dir::model_task;
 use crate::failure::Failure;
 
 /// One served model.

@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use segmenter_bridge::Bridge;
 
-use crate::commands::segment::BackendArgs;
+use crate::segmentation::BackendArgs;
 use crate::failure::Failure;
 use catalog::Catalog;
 use routes::{AppState, Limits, SegmenterChoice};

@@ -1,0 +1,34 @@
+//! Model directories: the task a trained one was trained on, and the checks every training
+//! command makes before it creates a new one.
+
+use std::fs;
+use std::path::Path;
+
+use serde_json::Value;
+
+use crate::failure::Failure;
+use crate::files::require_file;
+
+/// Checks shared by every training command before the interpreter starts: the model
+/// directory must be new and a given config file must exist.
+pub fn check_training_outputs(out: &Path, config: Option<&Path>) -> Result<(), Failure> {
+    if out.exists() {
+        return Err(Failure::BadInput(format!(
+            "{} already exists; models are never overwritten, choose a new --out",
+            out.display()
+        )));
+    }
+    config.map_or(Ok(()), |config| require_file(config, "config"))
+}
+
+/// The task a model directory was trained on (its config.json's "task"; empty when the
+/// config names none, as the segmenter's checkpoint directory does).
+pub fn model_task(model: &Path) -> Result<String, Failure> {
+    let config_path = model.join("config.json");
+    require_file(&config_path, "model config")?;
+    let text = fs::read_to_string(&config_path)
+        .map_err(|err| Failure::BadInput(format!("cannot read {}: {err}", config_path.display())))?;
+    let config: Value = serde_json::from_str(&text)
+        .map_err(|err| Failure::BadInput(format!("{} is not JSON: {err}", config_path.display())))?;
+    Ok(config.get("task").and_then(Value::as_str).unwrap_or_default().to_owned())
+}
