@@ -16,10 +16,11 @@ from cnfmp import runtime
 
 runtime.configure(threads=1)
 
+from cnfmp.seeds import HELDOUT_SEEDS  # noqa: E402
 from cnfmp.segmenter import segment  # noqa: E402
-from cnfmp.segmenter.base import load_backend  # noqa: E402
+from cnfmp.segmenter.backends import load_backend  # noqa: E402
 from cnfmp.segmenter.training_film import render_scene  # noqa: E402
-from cnfmp.sim.task import get_task  # noqa: E402
+from cnfmp.sim.tasks import get_task  # noqa: E402
 
 
 def main() -> None:
@@ -30,7 +31,7 @@ def main() -> None:
     backend = load_backend(args.backend)
     task = get_task("language_pick_place")
     scenes = [(render_scene("language_pick_place", s)[0], task.scene(s).prompt)
-              for s in range(1_000_000, 1_000_000 + args.scenes)]
+              for s in HELDOUT_SEEDS[:args.scenes]]
     segment(*scenes[0], backend)  # first call: lazy initialisation
     cache = getattr(getattr(backend, "encoder", None), "cache", None)
     for label in ("cold phrase cache", "warm phrase cache"):

@@ -5,9 +5,9 @@ For each scene: render, predict from the image and the simulator's masks (as `cn
 does), compare the predicted trajectory with the scripted expert's at the frames where the
 expert opens the gripper (horizontal position error, height error, angle between the two
 finger axes), and execute the prediction. Run it on the model's own training scenes and on
-validation scenes (training-range seeds it never saw, default 500000..) to tell a model that
-cannot fit its demonstrations from one that does not generalise. Held-out seeds are refused,
-so nothing is tuned on them.
+validation scenes (training-range seeds it never saw, by default from the first validation
+seed) to tell a model that cannot fit its demonstrations from one that does not generalise.
+Held-out seeds are refused, so nothing is tuned on them.
 
     .venv/bin/python scripts/release-errors.py --model models/cup_stacking --seed-start 0 --scenes 20
     .venv/bin/python scripts/release-errors.py --model models/cup_stacking --seed-start 500000 --scenes 20
@@ -29,6 +29,7 @@ runtime.configure(threads=1)  # before torch loads: one thread, deterministic ke
 
 from cnfmp import geometry  # noqa: E402
 from cnfmp.core import api as core, trial  # noqa: E402
+from cnfmp.seeds import VALIDATION_SEEDS  # noqa: E402
 from cnfmp.sim import api as sim  # noqa: E402
 from cnfmp.sim.engine import CLOSED_BELOW  # noqa: E402
 
@@ -76,8 +77,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", required=True, help="core model directory")
     parser.add_argument("--task", default=None, help="task (default: the model's)")
-    parser.add_argument("--seed-start", type=int, default=trial.VALIDATION_SEED_START,
-                        help="first scene seed (0.. are the demonstrations' scenes; default 500000)")
+    parser.add_argument("--seed-start", type=int, default=VALIDATION_SEEDS.start,
+                        help=f"first scene seed (0.. are the demonstrations' scenes; default {VALIDATION_SEEDS.start})")
     parser.add_argument("--scenes", type=int, default=20)
     args = parser.parse_args()
     problem = trial.validation_range_error(args.seed_start, args.scenes)

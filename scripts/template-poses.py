@@ -4,8 +4,8 @@ the object's latent gives its template (the linear part of the deformation, for 
 
 Run it on the model's training scenes (the latents training learned for each demonstration;
 seeds from 0, as `cnfmp sim generate` numbers them) to see what the latent encodes, and on
-validation scenes (the latents inference finds; default seeds 500000..) to see where a new
-scene lands. Held-out seeds are refused, so nothing is tuned on them.
+validation scenes (the latents inference finds; by default from the first validation seed)
+to see where a new scene lands. Held-out seeds are refused, so nothing is tuned on them.
 
     .venv/bin/python scripts/template-poses.py --model models/incline_pick_place --slot 2
     .venv/bin/python scripts/template-poses.py --model models/incline_pick_place --slot 2 \\
@@ -30,7 +30,8 @@ import torch  # noqa: E402
 from cnfmp.core import api as core, data as core_data, trial  # noqa: E402
 from cnfmp.core.modeling_cnfmp import STRETCH_BOUND  # noqa: E402
 from cnfmp.images import decode_image, decode_labels  # noqa: E402
-from cnfmp.sim.task import get_task  # noqa: E402
+from cnfmp.seeds import VALIDATION_SEEDS  # noqa: E402
+from cnfmp.sim.tasks import get_task  # noqa: E402
 
 
 def template_pose(field, latent: torch.Tensor) -> tuple[float, float, float, float]:
@@ -59,7 +60,7 @@ def main() -> None:
     parser.add_argument("--validation", action="store_true",
                         help="infer the latents of validation scenes instead of reading the training latents")
     parser.add_argument("--seed-start", type=int, default=None,
-                        help="first scene seed (default: 0 for training scenes, 500000 for --validation)")
+                        help=f"first scene seed (default: 0 for training scenes, {VALIDATION_SEEDS.start} for --validation)")
     parser.add_argument("--scenes", type=int, default=None,
                         help="scenes to show (default: every demonstration; 20 with --validation)")
     args = parser.parse_args()
@@ -71,7 +72,7 @@ def main() -> None:
         parser.error(f"--slot must be in 1..{config.num_objects} ({', '.join(config.object_names)})")
     slot = args.slot - 1
     demos = model.demo_logits.shape[0]
-    seed_start = args.seed_start if args.seed_start is not None else (trial.VALIDATION_SEED_START if args.validation else 0)
+    seed_start = args.seed_start if args.seed_start is not None else (VALIDATION_SEEDS.start if args.validation else 0)
     scenes = args.scenes or (20 if args.validation else demos)
     problem = trial.validation_range_error(seed_start, scenes)
     if problem:

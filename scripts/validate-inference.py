@@ -1,6 +1,7 @@
 """Compares inference settings of a core model on validation scenes: training-range seeds
-that no shipped model was trained on (default 500000.., the demonstrations use 0..99), never
-the held-out range, so choosing a setting here leaves the held-out figures unbiased.
+that no shipped model was trained on (by default from the first validation seed; the
+demonstrations use 0..99), never the held-out range, so choosing a setting here leaves the
+held-out figures unbiased.
 
 For each scene: render, take the coarse masks from the simulator (`--masks simulator`, as
 `cnfmp eval` does) or segment the scene's prompt with the film backend (`--masks prompt`, as
@@ -32,6 +33,7 @@ runtime.configure(threads=1)  # before torch loads: one thread, deterministic ke
 
 from cnfmp.core import api as core, trial  # noqa: E402
 from cnfmp.errors import InputError  # noqa: E402
+from cnfmp.seeds import VALIDATION_SEEDS  # noqa: E402
 from cnfmp.segmenter import api as segmenter  # noqa: E402
 
 
@@ -70,7 +72,7 @@ def main() -> None:
     parser.add_argument("--model", required=True, help="core model directory")
     parser.add_argument("--task", default=None, help="task (default: the model's)")
     parser.add_argument("--scenes", type=int, default=80)
-    parser.add_argument("--seed-start", type=int, default=trial.VALIDATION_SEED_START)
+    parser.add_argument("--seed-start", type=int, default=VALIDATION_SEEDS.start)
     parser.add_argument("--masks", choices=["prompt", "simulator"], default="prompt",
                         help="coarse masks from the segmenter (default) or the simulator")
     parser.add_argument("--segmenter-weights", default=None,

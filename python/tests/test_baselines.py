@@ -123,16 +123,18 @@ def test_train_picks_the_model_type_and_refuses_mismatched_configs(dataset_dir, 
 
 
 def test_the_wall_grid_seeds_are_a_3x3x3_grid_of_height_and_goal():
+    from cnfmp.seeds import NFMP_GRID_SEEDS, NFMP_GRID_TASK
     from cnfmp.sim.tasks import wall_avoidance
 
-    scenes = [wall_avoidance.make_scene(seed) for seed in wall_avoidance.GRID_SEEDS]
+    assert NFMP_GRID_TASK == wall_avoidance.TASK.name  # the one task whose scenes know the grid
+    scenes = [wall_avoidance.make_scene(seed) for seed in NFMP_GRID_SEEDS]
     heights = sorted({round(s.params["wall_height"], 6) for s in scenes})
     goal_x = sorted({round(s.params["goal"][0], 6) for s in scenes})
     assert len(scenes) == 27 and len(heights) == 3 and len(goal_x) == 3
     assert len({round(s.params["wall_thickness"], 6) for s in scenes}) == 1
     assert len({(round(s.params["goal"][0], 6), round(s.params["goal"][1], 6), round(s.params["wall_height"], 6))
                 for s in scenes}) == 27
-    assert wall_avoidance.grid_cell(wall_avoidance.GRID_SEEDS.stop) is None
+    assert wall_avoidance.grid_cell(NFMP_GRID_SEEDS.stop) is None
     assert wall_avoidance.grid_cell(5) is None and wall_avoidance.grid_cell(1_000_000) is None
 
 

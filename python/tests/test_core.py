@@ -14,7 +14,7 @@ import torch
 from PIL import Image
 
 from cnfmp import geometry
-from cnfmp.core import api, data as core_data, motion, training
+from cnfmp.core import api, data as core_data, motion, training, training_cnfmp
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.inference import Predictor
 from cnfmp.core.modeling_cnfmp import CnfmpModel
@@ -44,7 +44,7 @@ def demos(dataset_dir):
 @pytest.fixture(scope="module")
 def trained(demos):
     config = CnfmpConfig(**TINY, steps=400, seed=3)
-    return training.train_model(demos, config)
+    return training_cnfmp.train_model(demos, config)
 
 
 def test_demonstrations_read_back_with_first_frame_and_trajectory(demos):
@@ -60,7 +60,7 @@ def test_demonstrations_read_back_with_first_frame_and_trajectory(demos):
 def test_a_few_steps_lower_the_losses(demos):
     config = CnfmpConfig(**TINY, steps=150, seed=0)
     losses = []
-    training.train_model(demos, config, log=lambda line: losses.append(line))
+    training_cnfmp.train_model(demos, config, log=lambda line: losses.append(line))
     steps = [line for line in losses if line.startswith("step ")]
     refits = [line for line in losses if line.startswith("motion refit ")]
     first, last = steps[0], steps[-1]
@@ -81,11 +81,11 @@ def test_a_few_steps_lower_the_losses(demos):
 def test_a_seeded_training_run_is_bitwise_reproducible(demos):
     """The same seed gives the same weights, bit for bit (models/ cards rely on it)."""
     config = CnfmpConfig(**{**TINY, "motion_refit_steps": 5}, steps=5, seed=11)
-    first, second = (training.train_model(demos, config)[0].state_dict() for _ in range(2))
+    first, second = (training_cnfmp.train_model(demos, config)[0].state_dict() for _ in range(2))
     assert first.keys() == second.keys()
     for name in first:
         assert torch.equal(first[name], second[name]), name
-    other = training.train_model(demos, dataclasses.replace(config, seed=12))[0].state_dict()
+    other = training_cnfmp.train_model(demos, dataclasses.replace(config, seed=12))[0].state_dict()
     assert not all(torch.equal(first[name], other[name]) for name in first), "the seed has no effect"
 
 
@@ -93,8 +93,8 @@ def test_several_draws_go_on_with_the_one_whose_motion_fits_best(demos):
     """Draw 0 is the plain seeded run; the draw with the lowest trajectory loss at the choice
     is the one trained on and returned, and the summary says which it was."""
     config = CnfmpConfig(**{**TINY, "motion_refit_steps": 0}, steps=20, seed=5)
-    single_model, single = training.train_model(demos, config)
-    model, summary = training.train_model(demos, dataclasses.replace(config, draws=3, draw_fraction=1.0))
+    single_model, single = training_cnfmp.train_model(demos, config)
+    model, summary = training_cnfmp.train_model(demos, dataclasses.replace(config, draws=3, draw_fraction=1.0))
     choice = summary["draws"]
     losses = choice["motion_mse"]
     assert choice["count"] == 3 and choice["steps"] == 20 and len(set(losses)) == 3

@@ -9,7 +9,7 @@ import pytest
 from cnfmp.errors import InputError, NotGrounded
 from cnfmp.images import encode_png
 from cnfmp.segmenter import api, order_by_roles, phrases, segment
-from cnfmp.segmenter.base import load_backend
+from cnfmp.segmenter.backends import load_backend
 from cnfmp.segmenter.color import ColorBackend
 from cnfmp.segmenter.postprocess import PostprocessConfig, extract
 

@@ -29,7 +29,7 @@ from transformers import (
 from transformers.models.clip.tokenization_clip import bytes_to_unicode
 
 from cnfmp.errors import InputError
-from cnfmp.segmenter.base import load_backend
+from cnfmp.segmenter.backends import load_backend
 
 PHRASES = ["red cup", "blue cube"]
 TEXT = dict(vocab_size=514, hidden_size=32, intermediate_size=64, num_hidden_layers=2, num_attention_heads=2,

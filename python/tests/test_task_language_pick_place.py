@@ -6,9 +6,9 @@ import copy
 import numpy as np
 import pytest
 
+from cnfmp.seeds import HELDOUT_SEEDS, TRAIN_SEEDS
 from cnfmp.sim import engine
 from cnfmp.sim.scene import CONTROL_HZ
-from cnfmp.sim.task import HELDOUT_SEEDS, TRAIN_SEEDS
 from cnfmp.sim.tasks import language_pick_place as task
 
 #: Held-out seeds whose named places are, in order, the paper, a box and a plate.

@@ -2,8 +2,8 @@
 camera image, the model's reconstruction, the learned masks (soft competition, argmax) and
 the coarse masks it was given.
 
-``python -m cnfmp.core.figures MODELS_DIR OUT_DIR [--seed 1000000]`` writes
-``OUT_DIR/<task>.png`` for every model directory in MODELS_DIR.
+``python -m cnfmp.core.figures MODELS_DIR OUT_DIR [--seed SEED]`` (by default the first held-out
+seed) writes ``OUT_DIR/<task>.png`` for every model directory in MODELS_DIR.
 """
 
 from __future__ import annotations
@@ -13,6 +13,8 @@ import json
 import os
 
 import numpy as np
+
+from cnfmp.seeds import HELDOUT_SEEDS
 
 #: Label colours: background black, then one colour per object slot.
 PALETTE = np.array([[0, 0, 0], [230, 25, 75], [60, 180, 75], [0, 130, 200], [255, 225, 25], [145, 30, 180]], np.uint8)
@@ -25,7 +27,7 @@ def scene_fit_picture(model_dir: str, seed: int) -> np.ndarray:
     from cnfmp.core.api import predictor
     from cnfmp.core.data import task_object_labels
     from cnfmp.sim import engine
-    from cnfmp.sim.task import get_task
+    from cnfmp.sim.tasks import get_task
 
     model = predictor(model_dir)
     task = get_task(model.config.task)
@@ -58,7 +60,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("models_dir")
     parser.add_argument("out_dir")
-    parser.add_argument("--seed", type=int, default=1_000_000)
+    parser.add_argument("--seed", type=int, default=HELDOUT_SEEDS.start)
     args = parser.parse_args(argv)
     runtime.configure(1)
     os.makedirs(args.out_dir, exist_ok=True)

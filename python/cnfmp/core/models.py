@@ -52,14 +52,14 @@ class ModelType:
 
 def model_types() -> dict[str, ModelType]:
     """Every model type by name (imported on first use: torch is heavy)."""
-    from cnfmp.core import modeling_cnn_cnmp, modeling_nfmp, training
+    from cnfmp.core import modeling_cnn_cnmp, modeling_nfmp, training_cnfmp
     from cnfmp.core.configuration_cnfmp import CnfmpConfig, CnfmpNoGateConfig
     from cnfmp.core.configuration_cnn_cnmp import CnnCnmpConfig
     from cnfmp.core.configuration_nfmp import NfmpConfig
     from cnfmp.core.inference import Predictor
     from cnfmp.core.modeling_cnfmp import CnfmpModel
 
-    compositional = dict(train=training.train_model, from_state=CnfmpModel.from_state, predictor=Predictor)
+    compositional = dict(train=training_cnfmp.train_model, from_state=CnfmpModel.from_state, predictor=Predictor)
     types = [
         ModelType("cnfmp", "Compositional neural-field movement primitive (paper §II-B)", CnfmpConfig, **compositional),
         ModelType("cnfmp-nogate", "Compositional neural-field movement primitive without temporal gating "

@@ -12,13 +12,8 @@ import tempfile
 import numpy as np
 
 from cnfmp.errors import InputError
+from cnfmp.seeds import TRAIN_SEEDS
 from cnfmp.sim import api as sim
-from cnfmp.sim.task import TRAIN_SEEDS
-
-
-#: First validation scene seed: training-range seeds far above any dataset's demonstrations
-#: (which number from 0), and below the held-out ones (`cnfmp eval --validation` uses the same).
-VALIDATION_SEED_START = 500_000
 
 
 def validation_range_error(seed_start: int, scenes: int) -> str | None:

@@ -26,8 +26,10 @@ import time
 import numpy as np
 
 from cnfmp.errors import InputError
+from cnfmp.seeds import HELDOUT_SEEDS, TRAIN_SEEDS
 from cnfmp.sim import scene as sc
-from cnfmp.sim.task import HELDOUT_SEEDS, TRAIN_SEEDS, check_seed, get_task
+from cnfmp.sim.task import check_seed
+from cnfmp.sim.tasks import get_task
 
 #: Frames per second of the datasets: every CONTROL_HZ / DATASET_FPS-th control step.
 DATASET_FPS = 10

@@ -6,7 +6,7 @@ the prompt names, with its role, score, bounding box and centroid.
     result.labels            # (H, W) uint8: 0 background, k the k-th phrase
     [p.role for p in result.phrases]   # ["target", "destination"]
 
-The prompt is parsed into phrases (:mod:`.phrases`), a backend (:mod:`.base`) grounds each
+The prompt is parsed into phrases (:mod:`.phrases`), a backend (:mod:`.backends`) grounds each
 phrase's canonical wording (synonyms resolved by the vocabulary: "cobalt glass" -> "blue
 cup") as a probability map, and the shared OpenCV chain (:mod:`.postprocess`) extracts the
 masks. A prompt naming nothing in the vocabulary is grounded as a whole by open-vocabulary
@@ -23,7 +23,8 @@ import numpy as np
 
 from cnfmp.errors import NotGrounded
 from cnfmp.segmenter import phrases as _phrases
-from cnfmp.segmenter.base import Backend, check_image, load_backend
+from cnfmp.segmenter.backends import load_backend
+from cnfmp.segmenter.base import Backend, check_image
 from cnfmp.segmenter.postprocess import ObjectMask, extract, label_map
 
 @dataclass

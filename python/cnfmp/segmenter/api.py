@@ -14,7 +14,8 @@ import numpy as np
 
 from cnfmp.images import decode_image, encode_png
 from cnfmp.segmenter import Segmentation, order_by_roles, phrases, segment as segment_array, task_roles
-from cnfmp.segmenter.base import Backend, load_backend
+from cnfmp.segmenter.backends import load_backend
+from cnfmp.segmenter.base import Backend
 
 _BACKENDS: dict[tuple[str, str | None], Backend] = {}
 #: Overlay colours (RGB) per phrase, cycled.
@@ -124,7 +125,7 @@ def evaluate(task: str, episodes: int, seed_start: int, backend_name: str = "aut
     import sys
 
     from cnfmp.segmenter import evaluation
-    from cnfmp.sim.task import get_task
+    from cnfmp.sim.tasks import get_task
 
     get_task(task)  # an unknown task is an InputError before anything loads
     report = evaluation.evaluate(backend(backend_name, weights), task, episodes, seed_start,

@@ -48,7 +48,8 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
 
 def evaluate(backend: Backend, task: str, episodes: int, seed_start: int, log=None) -> dict:
     """Evaluates `backend` on `episodes` held-out scenes of `task` from `seed_start`."""
-    from cnfmp.sim.task import HELDOUT_SEEDS, get_task
+    from cnfmp.seeds import HELDOUT_SEEDS
+    from cnfmp.sim.tasks import get_task
 
     if seed_start not in HELDOUT_SEEDS or seed_start + episodes - 1 not in HELDOUT_SEEDS:
         raise InputError(f"evaluation scenes must be held-out: seeds {seed_start}..={seed_start + episodes - 1} "

@@ -47,7 +47,7 @@ def render_scene(task: str, seed: int) -> tuple[np.ndarray, np.ndarray, list[str
     """The (task, seed) scene as ``cnfmp sim render`` shows it: (128, 128, 3) uint8 RGB,
     (128, 128) uint8 labels and the object names in label order."""
     from cnfmp.sim import engine
-    from cnfmp.sim.task import get_task
+    from cnfmp.sim.tasks import get_task
 
     scene = get_task(task).scene(seed)
     sim = engine.Simulation(scene)

@@ -1,8 +1,9 @@
 """The MuJoCo benchmark: five tasks built in code, scripted experts, physical judges.
 
 Modules: `scene` (table, camera, gripper), `engine` (scene image, masks, executing a
-trajectory), `task` (the Task/Scene/Verdict types, registry, seed ranges), `tasks/` (one
-module per task), `api` (the entry points the Rust bridge calls).
+trajectory), `task` (the Task/Scene/Verdict types), `tasks/` (one module per task and the
+registry of them by name), `api` (the entry points the Rust bridge calls). The seed ranges
+are in :mod:`cnfmp.seeds`.
 """
 
 from cnfmp.runtime import choose_gl_backend

@@ -17,7 +17,8 @@ import numpy as np
 from cnfmp.errors import InputError
 from cnfmp.sim import engine
 from cnfmp.sim.scene import CONTROL_HZ, IMAGE_SIZE, project_to_image
-from cnfmp.sim.task import check_seed, get_task, task_names
+from cnfmp.sim.task import check_seed
+from cnfmp.sim.tasks import get_task, task_names
 
 __all__ = ["CONTROL_HZ", "draw_trajectory", "execute", "expert", "render", "task_names", "tasks_json"]
 

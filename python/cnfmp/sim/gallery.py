@@ -12,7 +12,8 @@ import sys
 
 import numpy as np
 
-from cnfmp.sim.task import HELDOUT_SEEDS, get_task, task_names
+from cnfmp.seeds import HELDOUT_SEEDS
+from cnfmp.sim.tasks import get_task, task_names
 
 # Label colours for the mask panel (background black).
 _PALETTE = np.array([[0, 0, 0], [230, 25, 75], [60, 180, 75], [255, 225, 25], [0, 130, 200],

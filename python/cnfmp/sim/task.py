@@ -1,4 +1,5 @@
-"""What every benchmark task provides, and the registry of tasks by name.
+"""What every benchmark task provides: the Task, Scene and Verdict types (the tasks by name
+are in :mod:`cnfmp.sim.tasks`, the seed ranges in :mod:`cnfmp.seeds`).
 
 A task is fully determined by (name, seed): :meth:`Task.scene` samples the variation
 parameters from ``numpy.random.default_rng(seed)`` and builds the MJCF. The expert and the
@@ -14,11 +15,6 @@ from typing import Callable
 import numpy as np
 
 from cnfmp.errors import InputError
-
-#: Seeds for training scenes and demonstrations.
-TRAIN_SEEDS = range(0, 1_000_000)
-#: Seeds for held-out scenes (evaluation); disjoint from TRAIN_SEEDS.
-HELDOUT_SEEDS = range(1_000_000, 2_000_000)
 
 
 @dataclass
@@ -75,32 +71,6 @@ class Task:
     def __post_init__(self):
         # One line without the "name:" lead of the module docstrings, for listings.
         self.description = " ".join(self.description.split()).removeprefix(f"{self.name}: ")
-
-
-_TASKS: dict[str, Task] = {}
-
-
-def register(task: Task) -> Task:
-    _TASKS[task.name] = task
-    return task
-
-
-def get_task(name: str) -> Task:
-    """The task called `name`; InputError naming the known tasks otherwise."""
-    _load_all()
-    try:
-        return _TASKS[name]
-    except KeyError:
-        raise InputError(f"unknown task {name!r}; known tasks: {', '.join(task_names())}") from None
-
-
-def task_names() -> list[str]:
-    _load_all()
-    return sorted(_TASKS)
-
-
-def _load_all() -> None:
-    from cnfmp.sim import tasks  # noqa: F401  (each module registers itself)
 
 
 def check_seed(seed: int) -> None:

@@ -14,7 +14,8 @@ import multiprocessing
 import sys
 import time
 
-from cnfmp.sim.task import HELDOUT_SEEDS, get_task, task_names
+from cnfmp.seeds import HELDOUT_SEEDS
+from cnfmp.sim.tasks import get_task, task_names
 
 
 def _init() -> None:

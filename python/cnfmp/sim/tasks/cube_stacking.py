@@ -15,7 +15,7 @@ import numpy as np
 
 from cnfmp import prompts
 from cnfmp.sim.scene import scene_xml
-from cnfmp.sim.task import Scene, Task, Verdict, register
+from cnfmp.sim.task import Scene, Task, Verdict
 from cnfmp.sim.tasks.common import (box_body, expert_path, grasp_yaw, pick_and_place,
                                     released_and_at_rest, sample_positions)
 
@@ -75,4 +75,4 @@ def judge(scene: Scene, log) -> Verdict:
     return Verdict(not reasons, reasons, metrics)
 
 
-TASK = register(Task("cube_stacking", __doc__.split("\n\n")[0], make_scene, expert, judge))
+TASK = Task("cube_stacking", __doc__.split("\n\n")[0], make_scene, expert, judge)

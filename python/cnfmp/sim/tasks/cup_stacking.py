@@ -21,7 +21,7 @@ import numpy as np
 from cnfmp import geometry, prompts
 from cnfmp.sim.engine import weld_xml
 from cnfmp.sim.scene import scene_xml
-from cnfmp.sim.task import Scene, Task, Verdict, register
+from cnfmp.sim.task import Scene, Task, Verdict
 from cnfmp.sim.tasks.common import (Waypoint, expert_path, fmt, pick_and_place, released_and_at_rest, rgba,
                                     sample_positions)
 
@@ -178,4 +178,4 @@ def judge(scene: Scene, log) -> Verdict:
     return Verdict(not reasons, reasons, {"nesting": nesting, "tilt_deg": tilts})
 
 
-TASK = register(Task("cup_stacking", __doc__.split("\n\n")[0], make_scene, expert, judge))
+TASK = Task("cup_stacking", __doc__.split("\n\n")[0], make_scene, expert, judge)

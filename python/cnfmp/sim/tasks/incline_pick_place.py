@@ -22,7 +22,7 @@ import numpy as np
 
 from cnfmp import geometry, prompts
 from cnfmp.sim.scene import scene_xml
-from cnfmp.sim.task import Scene, Task, Verdict, register
+from cnfmp.sim.task import Scene, Task, Verdict
 from cnfmp.sim.tasks.common import (Waypoint, box_body, expert_path, fmt, grasp_yaw,
                                     released_and_at_rest, sample_positions)
 
@@ -182,4 +182,4 @@ def judge(scene: Scene, log) -> Verdict:
     return Verdict(not reasons, reasons, metrics)
 
 
-TASK = register(Task("incline_pick_place", __doc__.split("\n\n")[0], make_scene, expert, judge))
+TASK = Task("incline_pick_place", __doc__.split("\n\n")[0], make_scene, expert, judge)

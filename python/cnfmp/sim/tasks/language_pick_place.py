@@ -26,9 +26,10 @@ from __future__ import annotations
 import numpy as np
 
 from cnfmp import geometry, prompts
+from cnfmp.seeds import HELDOUT_SEEDS
 from cnfmp.sim import engine
 from cnfmp.sim.scene import FINGER_TRAVEL, scene_xml
-from cnfmp.sim.task import HELDOUT_SEEDS, Scene, Task, Verdict, register
+from cnfmp.sim.task import Scene, Task, Verdict
 from cnfmp.sim.tasks.common import (COLOURS, box_body, expert_path, fmt, grasp_yaw,
                                     pick_and_place, released_and_at_rest, rgba)
 
@@ -398,4 +399,4 @@ def judge(scene: Scene, log) -> Verdict:
     return Verdict(not reasons, reasons, metrics)
 
 
-TASK = register(Task("language_pick_place", __doc__.split("\n\n")[0], make_scene, expert, judge))
+TASK = Task("language_pick_place", __doc__.split("\n\n")[0], make_scene, expert, judge)

@@ -13,8 +13,8 @@ Objects in label order: wall, goal marker (a flat disc on the table that nothing
 with). No grasp: the gripper stays open throughout.
 Success: no contact between the gripper and the wall at any physics step, and the final
 measured tool centre point within 2 cm of the goal: 1.5 cm above the marker's centre.
-Training seeds 900000..900026 are a 3x3x3 grid of wall height, goal x and goal y instead
-of random draws (`GRID_SEEDS`), for the grid-trained NFMP baseline.
+The 27 training seeds of `cnfmp.seeds.NFMP_GRID_SEEDS` are a 3x3x3 grid of wall height, goal
+x and goal y instead of random draws, for the grid-trained NFMP baseline.
 """
 
 from __future__ import annotations
@@ -25,8 +25,9 @@ import xml.etree.ElementTree as ElementTree
 import numpy as np
 
 from cnfmp import geometry, prompts
+from cnfmp.seeds import NFMP_GRID_SEEDS
 from cnfmp.sim.scene import scene_xml
-from cnfmp.sim.task import Scene, Task, Verdict, register
+from cnfmp.sim.task import Scene, Task, Verdict
 from cnfmp.sim.tasks.common import Waypoint, expert_path, fmt, rgba
 
 #: Wall height range (m). Taller walls would hide the whole table up to GOAL_Y_MAX from the
@@ -65,11 +66,10 @@ START_POSITION = np.array([0.0, -0.20, 0.06])
 #: and holding still at the goal.
 RISE_S, CROSS_S, DESCEND_S, HOLD_S = 1.0, 1.5, 1.2, 0.4
 GOAL_TOLERANCE = 0.02
-#: Training seeds of the grid-structured set the NFMP baseline trains on (3 levels of each of
-#: 3 parameters, 27 scenes): seed GRID_SEEDS.start + 9 h + 3 x + y has wall height level h,
+#: Levels of the grid-structured set the NFMP baseline trains on (3 levels of each of 3
+#: parameters, 27 scenes): seed NFMP_GRID_SEEDS.start + 9 h + 3 x + y has wall height level h,
 #: goal x level x and goal y level y (levels at 1/6, 1/2 and 5/6 of each range; the goal y
-#: range depends on the wall). Within the training seeds, far from the seeds datasets start at.
-GRID_SEEDS = range(900_000, 900_027)
+#: range depends on the wall).
 GRID_LEVELS = (1 / 6, 1 / 2, 5 / 6)
 GRIPPER_BODIES = ("gripper", "gripper_left", "gripper_right")
 
@@ -101,9 +101,9 @@ def _far_face_limit(height: float) -> float:
 def grid_cell(seed: int) -> tuple[float, float, float] | None:
     """For a grid seed, the (wall height, goal x, goal y) levels of its cell as fractions of
     each parameter's range; None for any other seed."""
-    if seed not in GRID_SEEDS:
+    if seed not in NFMP_GRID_SEEDS:
         return None
-    cell = seed - GRID_SEEDS.start
+    cell = seed - NFMP_GRID_SEEDS.start
     return GRID_LEVELS[cell // 9], GRID_LEVELS[cell // 3 % 3], GRID_LEVELS[cell % 3]
 
 
@@ -170,4 +170,4 @@ def judge(scene: Scene, log) -> Verdict:
     return Verdict(not reasons, reasons, {"goal_distance_m": distance, "touched_wall": touched_wall})
 
 
-TASK = register(Task("wall_avoidance", __doc__.split("\n\n")[0], make_scene, expert, judge))
+TASK = Task("wall_avoidance", __doc__.split("\n\n")[0], make_scene, expert, judge)
