@@ -113,41 +113,7 @@ fn png(width: u32, height: u32, depth: png::BitDepth, pixels: &[u8]) -> Vec<u8> 
     out
 }
 
-/// A multipart form of text fields only.
-fn text_form(fields: &[(&str, &str)]) -> (String, Vec<u8>) {
-    let mut body = String::new();
-    for (name, value) in fields {
-        body.push_str(&format!("--b0undary\r\nContent-Disposition: form-data; name=\"{name}\"\r\n\r\n{value}\r\n"));
-    }
-    body.push_str("--b0undary--\r\n");
-    ("multipart/form-data; boundary=b0undary".into(), body.into_bytes())
-}
 
-/// A well-formed PNG whose header claims 0x0 pixels (no encoder writes one).
-fn zero_by_zero_png() -> Vec<u8> {
-    fn crc32(bytes: &[u8]) -> u32 {
-        let mut crc = !0u32;
-        for &byte in bytes {
-            crc ^= u32::from(byte);
-            for _ in 0..8 {
-                crc = if crc & 1 == 1 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
-            }
-        }
-        !crc
-    }
-    fn chunk(out: &mut Vec<u8>, kind: &[u8], data: &[u8]) {
-        out.extend_from_slice(&(data.len() as u32).to_be_bytes());
-        let start = out.len();
-        out.extend_from_slice(kind);
-        out.extend_from_slice(data);
-        let crc = crc32(&out[start..]);
-        out.extend_from_slice(&crc.to_be_bytes());
-    }
-    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
-    chunk(&mut out, b"IHDR", &[0, 0, 0, 0, 0, 0, 0, 0, 8, 2, 0, 0, 0]);
-    chunk(&mut out, b"IEND", &[]);
-    out
-}
 
 #[test]
 fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigterm_drains() {
@@ -199,31 +165,14 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
         .unwrap();
     assert!(masks.starts_with(b"\x89PNG"), "the masks are not a PNG");
 
-    // Bad requests: each a 4xx with its code and a message; the server keeps serving.
+    // Bad requests that only Python can tell (the in-process tests of src/serve/tests.rs check
+    // every refusal made before Python work): each a 4xx with its code and a message, and the
+    // server keeps serving.
     let truncated = &image[..image.len() / 2];
-    let huge = png(20_000, 20_000, png::BitDepth::One, &vec![0u8; 2_500 * 20_000]);
-    let long_prompt = "put the red cube on the paper ".repeat(3_500); // ~100 KB
     let form = |image: &[u8], fields: &[(&str, &str)]| multipart_form(image, fields);
     let cases: Vec<BadRequest> = vec![
-        ("not an image", form(b"this is not an image", &[("prompt", &prompt)]), 400, "invalid_image"),
         ("truncated PNG", form(truncated, &[("prompt", &prompt)]), 400, "invalid_input"),
-        ("0x0 image", form(&zero_by_zero_png(), &[("prompt", &prompt)]), 400, "invalid_image"),
-        ("20000x20000 image", form(&huge, &[("prompt", &prompt)]), 413, "image_too_large"),
-        ("empty prompt", form(&image, &[("prompt", "  ")]), 400, "empty_prompt"),
-        ("100 KB prompt", form(&image, &[("prompt", &long_prompt)]), 400, "prompt_too_long"),
-        ("unknown model", form(&image, &[("prompt", &prompt), ("model", "no_such_model")]), 404, "unknown_model"),
-        ("unknown task", form(&image, &[("prompt", &prompt), ("task", "juggling")]), 404, "unknown_task"),
-        ("masks-only task", form(&image, &[("prompt", &prompt), ("task", "cup_stacking")]), 422, "not_promptable"),
         ("nothing grounded", form(&image, &[("prompt", "put the unicorn on the paper")]), 422, "not_grounded"),
-        ("unknown form field", form(&image, &[("prompt", &prompt), ("promt", "x")]), 400, "unknown_field"),
-        ("form without image", text_form(&[("prompt", &prompt)]), 400, "missing_field"),
-        ("broken form", ("multipart/form-data; boundary=abc".into(), b"--abc\r\nContent-Disposition: form-data\r\n".to_vec()), 400, "malformed_form"),
-        ("wrong content type", ("text/plain".into(), prompt.as_bytes().to_vec()), 415, "unsupported_media_type"),
-        ("malformed JSON", ("application/json".into(), b"{\"prompt\": ".to_vec()), 400, "malformed_json"),
-        ("JSON missing a field", ("application/json".into(), json!({"prompt": prompt}).to_string().into_bytes()), 400, "missing_field"),
-        ("JSON wrong type", ("application/json".into(), json!({"image_base64": 3, "prompt": prompt}).to_string().into_bytes()), 400, "invalid_field"),
-        ("JSON bad base64", ("application/json".into(), json!({"image_base64": "%%%", "prompt": prompt}).to_string().into_bytes()), 400, "invalid_base64"),
-        ("body over the limit", form(&vec![0u8; 3_500_000], &[("prompt", &prompt)]), 413, "body_too_large"),
     ];
     for (name, (content_type, body), status, code) in &cases {
         let answer = post(&server.url("/v1/trajectories"), content_type, body);
@@ -231,12 +180,6 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
         assert_eq!(answer.body["error"]["code"], *code, "{name}: {}", answer.body);
         assert!(answer.body["error"]["message"].as_str().is_some_and(|m| m.len() > 10), "{name}: {}", answer.body);
     }
-    let answer = post_form(&server, &zero_by_zero_png()[..0], &[("prompt", &prompt)]);
-    assert_eq!((answer.status, answer.body["error"]["code"].as_str()), (400, Some("invalid_image")), "empty image");
-    let (status, text) = get(&server.url("/v1/nothing-here"));
-    assert_eq!(status, 404, "{text}");
-    let answer = read(http_client().delete(server.url("/v1/models")).call().unwrap());
-    assert_eq!((answer.status, answer.body["error"]["code"].as_str()), (405, Some("method_not_allowed")));
     let still = post_form(&server, &image, &[("prompt", &prompt)]);
     assert_eq!(still.status, 200, "after the bad requests: {}", still.body);
 

@@ -101,20 +101,24 @@ impl Catalog {
             };
             models.push(ServedModel { dir, summary, takes_distractors: description.takes_distractors });
         }
+        Ok(Catalog::new(models, default_model))
+    }
+
+    /// The catalog of `models` (in name order). `default_model` is used when a request names
+    /// neither a model nor a task; with one model, that one is the default.
+    pub fn new(mut models: Vec<ServedModel>, default_model: &str) -> Catalog {
         let default = match models.iter().position(|m| m.summary.name == default_model) {
             Some(index) => Some(index),
             None if models.len() == 1 => Some(0),
             None => {
-                eprintln!(
-                    "cnfmp serve: no model named {default_model:?}; requests must name a model or a task"
-                );
+                eprintln!("cnfmp serve: no model named {default_model:?}; requests must name a model or a task");
                 None
             }
         };
         if let Some(index) = default {
             models[index].summary.default = true;
         }
-        Ok(Catalog { models, default })
+        Catalog { models, default }
     }
 
     pub fn models(&self) -> impl Iterator<Item = &ServedModel> {

@@ -1,15 +1,16 @@
 //! `cnfmp serve`: the HTTP API (axum) through which a robot stack asks for trajectories.
 //!
 //! Every served model and the segmenter are loaded before the server listens. Requests are
-//! parsed and checked on the async runtime; their Python work (segment, then predict) goes
-//! through one bounded queue to the bridge's single worker thread (see [`queue`]), so a
-//! burst is answered 503 at once instead of queueing without bound. SIGTERM or Ctrl-C stops
+//! parsed and checked on the async runtime (`routes`); their Python work (segment, then
+//! predict: `pipeline`) goes through one bounded queue to the bridge's single worker thread
+//! (`queue`), so a burst is answered 503 at once instead of queueing without bound. SIGTERM or Ctrl-C stops
 //! accepting connections, lets in-flight requests finish, and exits 0.
 
 pub mod api;
 mod catalog;
 mod error;
 mod metrics;
+mod pipeline;
 mod queue;
 mod routes;
 
@@ -25,7 +26,8 @@ use segmenter_bridge::Bridge;
 use crate::segmentation::BackendArgs;
 use crate::failure::Failure;
 use catalog::Catalog;
-use routes::{AppState, Limits, SegmenterChoice};
+use pipeline::{BridgePipeline, SegmenterChoice};
+use routes::{AppState, Limits};
 
 /// The line `cnfmp serve` prints on stdout once it listens; the address follows it.
 pub const LISTENING: &str = "cnfmp serve: listening on http://";
@@ -79,11 +81,12 @@ pub fn run(args: ServeArgs) -> Result<(), Failure> {
         .segmenter_preload(&args.segmenter.backend, args.segmenter.weights.clone())
         .map_err(|err| Failure::from(err).with_context("cannot load the segmenter"))?;
     eprintln!("cnfmp serve: segmenter {backend}; ready in {:.1} s", started.elapsed().as_secs_f64());
-    let queue = queue::PythonQueue::start(bridge, args.queue_capacity as usize)
+    let segmenter = SegmenterChoice { backend, weights: args.segmenter.weights.clone() };
+    let pipeline = BridgePipeline::start(bridge, args.queue_capacity as usize, segmenter)
         .map_err(|err| Failure::Environment(format!("cannot start the dispatcher thread: {err}")))?;
     let state = Arc::new(AppState {
         catalog,
-        queue,
+        pipeline: Box::new(pipeline),
         metrics: metrics::Metrics::default(),
         limits: Limits {
             max_body_bytes: args.max_body_bytes,
@@ -91,7 +94,6 @@ pub fn run(args: ServeArgs) -> Result<(), Failure> {
             max_prompt_chars: args.max_prompt_chars as usize,
             request_timeout: Duration::from_secs_f64(args.request_timeout_s),
         },
-        segmenter: SegmenterChoice { backend, weights: args.segmenter.weights.clone() },
         started,
     });
     // Two async workers suffice: handlers only parse, check and wait; Python does the work.
@@ -121,7 +123,7 @@ async fn serve(addr: SocketAddr, state: Arc<AppState>) -> Result<(), Failure> {
         .await
         .map_err(|err| Failure::Environment(format!("the server failed: {err}")))?;
     // Requests in flight were answered; work abandoned by clients may still run in Python.
-    if !tokio::task::block_in_place(|| state.queue.wait_idle(drain_limit)) {
+    if !tokio::task::block_in_place(|| state.pipeline.wait_idle(drain_limit)) {
         return Err(Failure::Environment(format!(
             "the Python worker did not finish its last job within {} s of the shutdown; exiting anyway",
             drain_limit.as_secs()
@@ -150,3 +152,6 @@ async fn shutdown_signal() {
     }
     eprintln!("cnfmp serve: shutting down; finishing requests in flight");
 }
+
+#[cfg(test)]
+mod tests;

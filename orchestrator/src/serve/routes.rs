@@ -7,21 +7,21 @@ use std::time::{Duration, Instant};
 
 use axum::body::Bytes;
 use axum::extract::{DefaultBodyLimit, FromRequest, MatchedPath, Multipart, Request, State};
-use axum::http::{HeaderMap, StatusCode, header};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use base64::Engine;
 use base64::engine::{DecodePaddingMode, GeneralPurpose, GeneralPurposeConfig};
-use segmenter_bridge::{Bridge, Prediction, SegmentRequest, Segmentation};
 use utoipa::OpenApi;
 
 use super::api::*;
 use super::catalog::{Catalog, ServedModel};
-use super::error::{ApiError, ErrorCode};
-use super::metrics::{Metrics, QueueGauges};
-use super::queue::{PythonQueue, Refused};
+use super::error::{ApiError, ErrorCode, InternalDetail, REQUEST_ID, request_id};
+use super::metrics::Metrics;
+use super::pipeline::{FoundObjects, Pipeline, PipelineJob, PipelineOutput, SceneObjects};
+use super::queue::Refused;
 use crate::scene_masks::{self, CoarseMasks, MaskError};
 use crate::trajectory::Trajectory;
 
@@ -38,46 +38,13 @@ pub struct Limits {
     pub request_timeout: Duration,
 }
 
-/// Which segmenter backend the pipeline uses.
-#[derive(Debug, Clone)]
-pub struct SegmenterChoice {
-    pub backend: String,
-    pub weights: Option<std::path::PathBuf>,
-}
-
-/// How a request finds its objects.
-enum SceneObjects {
-    /// The segmenter finds the objects the prompt names.
-    Prompt(String),
-    /// The request carried the coarse masks.
-    Masks(CoarseMasks),
-}
-
-/// The coarse masks a request was answered with.
-enum FoundObjects {
-    /// Found by the segmenter from the prompt.
-    Segmented(Segmentation),
-    /// Sent with the request.
-    Given(CoarseMasks),
-}
-
-/// The result of the Python part of one request.
-pub struct PipelineOutput {
-    found: FoundObjects,
-    prediction: Prediction,
-    segment_s: f64,
-    infer_s: f64,
-}
-
-pub type PipelineResult = Result<PipelineOutput, ApiError>;
-
 /// Everything the handlers share.
 pub struct AppState {
     pub catalog: Catalog,
-    pub queue: PythonQueue<PipelineResult>,
+    /// Where trajectory jobs go (the Python worker, or a test's stand-in).
+    pub pipeline: Box<dyn Pipeline>,
     pub metrics: Metrics,
     pub limits: Limits,
-    pub segmenter: SegmenterChoice,
     pub started: Instant,
 }
 
@@ -99,7 +66,10 @@ pub fn router(state: Shared) -> Router {
         .with_state(state)
 }
 
-/// Counts every answer by route, status and error code, and logs one line per request.
+/// Gives every request an id (the client's `x-request-id` when it is a sane token), counts
+/// every answer by route, status and error code, and logs one line per request. This is the
+/// one place errors are logged: an internal error's details go to the log under the request
+/// id, which is all the client sees of them.
 async fn observe(State(state): State<Shared>, request: Request, next: Next) -> Response {
     let route = request
         .extensions()
@@ -107,19 +77,29 @@ async fn observe(State(state): State<Shared>, request: Request, next: Next) -> R
         .map(|path| path.as_str().to_owned())
         .unwrap_or_else(|| "unmatched".to_owned());
     let (method, path) = (request.method().clone(), request.uri().path().to_owned());
+    let id = request_id(request.headers().get(REQUEST_ID_HEADER));
     let started = Instant::now();
-    let response = next.run(request).await;
+    let mut response = REQUEST_ID.scope(id.clone(), next.run(request)).await;
     let seconds = started.elapsed().as_secs_f64();
     let code = response.extensions().get::<ErrorCode>().map(|code| code.0);
     state.metrics.record_request(&route, response.status().as_u16(), code, seconds);
     eprintln!(
-        "{method} {path} {} {:.1} ms{}",
+        "{method} {path} {} {:.1} ms{} [{id}]",
         response.status().as_u16(),
         seconds * 1e3,
         code.map(|code| format!(" ({code})")).unwrap_or_default()
     );
+    if let Some(InternalDetail(detail)) = response.extensions_mut().remove::<InternalDetail>() {
+        eprintln!("cnfmp serve: request {id}: internal error: {detail}");
+    }
+    if let Ok(value) = HeaderValue::from_str(&id) {
+        response.headers_mut().insert(REQUEST_ID_HEADER, value);
+    }
     response
 }
+
+/// The header that carries a request's id, both ways.
+const REQUEST_ID_HEADER: &str = "x-request-id";
 
 async fn unknown_route() -> ApiError {
     ApiError::not_found("unknown_route", "no such route; see GET /openapi.json for the API")
@@ -190,14 +170,12 @@ async fn answer_trajectory(state: &AppState, request: Request, started: Instant)
     let size = check_image(&input.image, state.limits.max_image_side)?;
     let served = state.catalog.select(input.model.as_deref(), input.task.as_deref())?;
     let objects = scene_objects(served, prompt.clone(), input.masks, input.objects, size)?;
-    let job = pipeline_job(served, &state.segmenter, input.image, objects);
-    let receiver = state.queue.submit(job).map_err(|refused| match refused {
+    let job = PipelineJob { model_dir: served.dir.clone(), task: served.summary.task.clone(), image: input.image, objects };
+    let receiver = state.pipeline.submit(job).map_err(|refused| match refused {
         Refused::Full { capacity, retry_after_s } => ApiError::overloaded(retry_after_s, capacity),
         Refused::Stopped => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "shutting_down", "the server is shutting down"),
     })?;
-    let done = receiver.await.map_err(|_| {
-        ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", "the Python worker stopped before answering")
-    })?;
+    let done = receiver.await.map_err(|_| ApiError::internal("the Python worker stopped before answering"))?;
     let output = done.result?;
     let waited = done.waited.as_secs_f64();
     let total = started.elapsed().as_secs_f64();
@@ -258,41 +236,6 @@ fn scene_objects(
     }
 }
 
-/// The Python work of one request, run on the dispatcher thread: segment (unless the masks
-/// came with the request), then predict.
-fn pipeline_job(
-    served: &ServedModel,
-    segmenter: &SegmenterChoice,
-    image: Vec<u8>,
-    objects: SceneObjects,
-) -> impl FnOnce(&Bridge) -> PipelineResult + Send + 'static {
-    let (dir, task, segmenter) = (served.dir.clone(), served.summary.task.clone(), segmenter.clone());
-    move |bridge| {
-        let segment_started = Instant::now();
-        let (labels_png, names, found) = match objects {
-            SceneObjects::Masks(masks) => (masks.png(), masks.objects.clone(), FoundObjects::Given(masks)),
-            SceneObjects::Prompt(prompt) => {
-                let found = bridge.segment(SegmentRequest {
-                    image: image.clone(),
-                    prompt,
-                    backend: segmenter.backend,
-                    weights: segmenter.weights,
-                    task: Some(task),
-                    pictures: false,
-                })?;
-                (found.labels_png.clone(), found.slot_names.clone(), FoundObjects::Segmented(found))
-            }
-        };
-        let segment_s = match found {
-            FoundObjects::Segmented(_) => segment_started.elapsed().as_secs_f64(),
-            FoundObjects::Given(_) => 0.0,
-        };
-        let infer_started = Instant::now();
-        let prediction = bridge.core_predict(&dir, image, labels_png, names)?;
-        Ok(PipelineOutput { found, prediction, segment_s, infer_s: infer_started.elapsed().as_secs_f64() })
-    }
-}
-
 /// `value` rounded to 6 decimals (µm, µs): the model's precision, and a compact answer.
 fn micro(value: f64) -> f64 {
     (value * 1e6).round() / 1e6
@@ -312,10 +255,8 @@ fn build_response(
 ) -> Result<TrajectoryResponse, ApiError> {
     let PipelineOutput { found, prediction, .. } = output;
     // The Rust trajectory checks (unit quaternions, increasing time, ...) guard the wire.
-    let trajectory = Trajectory::from_json_str(&prediction.json).map_err(|err| {
-        eprintln!("cnfmp serve: the model produced an invalid trajectory: {err}");
-        ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", format!("the model produced an invalid trajectory: {err}"))
-    })?;
+    let trajectory = Trajectory::from_json_str(&prediction.json)
+        .map_err(|err| ApiError::internal(format!("the model produced an invalid trajectory: {err}")))?;
     let frames = trajectory
         .frames
         .iter()
@@ -611,9 +552,9 @@ async fn health(State(state): State<Shared>) -> Json<Health> {
         status: "ok".into(),
         version: env!("CARGO_PKG_VERSION").into(),
         models: state.catalog.models().count(),
-        segmenter: state.segmenter.backend.clone(),
-        queue_depth: state.queue.depth(),
-        queue_capacity: state.queue.capacity(),
+        segmenter: state.pipeline.segmenter().to_owned(),
+        queue_depth: state.pipeline.gauges().depth,
+        queue_capacity: state.pipeline.gauges().capacity,
         uptime_s: state.started.elapsed().as_secs_f64(),
     })
 }
@@ -627,8 +568,7 @@ async fn list_models(State(state): State<Shared>) -> Json<ModelList> {
 /// Prometheus metrics (text exposition format 0.0.4).
 #[utoipa::path(get, path = "/metrics", responses((status = 200, description = "Counters, histograms and gauges.", body = String, content_type = "text/plain")))]
 async fn metrics(State(state): State<Shared>) -> impl IntoResponse {
-    let gauges = QueueGauges { depth: state.queue.depth(), capacity: state.queue.capacity(), pending: state.queue.pending() };
-    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")], state.metrics.render(gauges))
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")], state.metrics.render(state.pipeline.gauges()))
 }
 
 /// This description.
