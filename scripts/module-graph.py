@@ -25,8 +25,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "architecture.md"
-RUST_CRATES = {"orchestrator": ROOT / "orchestrator" / "src",
-               "segmenter-bridge": ROOT / "segmenter-bridge" / "src"}
+#: Each Rust crate's source folder and library name (its binary names the library's items
+#: through that name rather than `crate::`).
+RUST_CRATES = {"orchestrator": (ROOT / "orchestrator" / "src", "cnfmp"),
+               "segmenter-bridge": (ROOT / "segmenter-bridge" / "src", "segmenter_bridge")}
 PYTHON_PACKAGE = ROOT / "python" / "cnfmp"
 
 
@@ -130,11 +132,12 @@ def _expand_use_group(text: str) -> list[str]:
     return [head + part for item in items if item for part in _expand_use_group(item)]
 
 
-def rust_graph(crate: str, src: Path) -> Graph:
+def rust_graph(crate: str, src: Path, library: str) -> Graph:
     files = {_rust_module(p, src): p for p in sorted(src.rglob("*.rs"))}
     graph = Graph(crate, "::", {m for m in files if m})  # the crate root is not a node
     for module, path in files.items():
         text = _RUST_STRING.sub('""', _RUST_COMMENT.sub("", path.read_text()))
+        text = re.sub(rf"\b{library}::", "crate::", text)
         # Unit tests (`#[cfg(test)] mod tests`, last in a file) use their file through `super::`.
         text = text.split("#[cfg(test)]")[0]
         if not module:
@@ -199,7 +202,7 @@ def python_graph(package: Path) -> Graph:
 # ------------------------------------------------------------------------------------- the page
 
 def graphs() -> list[Graph]:
-    return [rust_graph(c, s) for c, s in RUST_CRATES.items()] + [python_graph(PYTHON_PACKAGE)]
+    return [rust_graph(c, s, lib) for c, (s, lib) in RUST_CRATES.items()] + [python_graph(PYTHON_PACKAGE)]
 
 
 def render(all_graphs: list[Graph]) -> str:

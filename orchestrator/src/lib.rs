@@ -7,6 +7,7 @@
 
 pub mod commands;
 pub mod convert;
+pub mod episode;
 pub mod failure;
 pub mod files;
 pub mod images;

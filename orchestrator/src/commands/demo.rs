@@ -15,13 +15,13 @@ use clap::Args;
 use segmenter_bridge::Bridge;
 use serde_json::{Map, Value};
 
-use crate::seeds::{first_heldout_seed, heldout_seed_range};
 use super::print_stdout;
+use crate::episode::Simulator;
 use crate::failure::Failure;
+use crate::seeds::{first_heldout_seed, heldout_seed_range};
 use crate::files::write_atomically;
 use crate::serve::LISTENING;
 use crate::serve::api::{ErrorResponse, TrajectoryResponse};
-use crate::trajectory::resample::{ResampleTarget, resample};
 use crate::trajectory::Trajectory;
 
 /// How long the server may take to load Python, torch and the models.
@@ -196,24 +196,16 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         .map_err(|err| Failure::Environment(format!("cannot find the cnfmp binary: {err}")))?;
     let mut server = ServerProcess::spawn(&exe, &args.models, &[])?;
     let bridge = Bridge::start_default()?;
-    let scratch = tempfile::tempdir().map_err(|err| Failure::Environment(format!("cannot create a temporary directory: {err}")))?;
-    let scene = bridge.sim_render(&args.task, args.seed, &scratch.path().join("scene"))?;
-    let image = std::fs::read(scratch.path().join("scene/image.png"))
-        .map_err(|err| Failure::Environment(format!("cannot read the rendered image: {err}")))?;
-    let prompt = args.prompt.clone().unwrap_or_else(|| scene.prompt.clone());
-    eprintln!("rendered held-out {} scene {} ({}); waiting for the server ...", args.task, args.seed, scene.objects.join(", "));
+    let simulator = Simulator::new(bridge)?;
+    let scene = simulator.render(&args.task, args.seed)?;
+    let prompt = args.prompt.clone().unwrap_or_else(|| scene.info.prompt.clone());
+    eprintln!("rendered held-out {} scene {} ({}); waiting for the server ...", args.task, args.seed, scene.info.objects.join(", "));
     let base = server.base_url(SERVER_START_TIMEOUT)?;
 
     eprintln!("POST {base}/v1/trajectories  prompt={prompt:?}");
-    let (answer, answer_text, round_trip_s) = request_trajectory(&base, &image, &prompt, &args.task)?;
+    let (answer, answer_text, round_trip_s) = request_trajectory(&base, &scene.image, &prompt, &args.task)?;
     let trajectory = trajectory_of(&answer, &answer_text)?;
-    let control_hz = bridge.sim_control_hz()?;
-    let executed = bridge.sim_execute(&args.task, args.seed, resample(&trajectory, ResampleTarget::Fps(control_hz))?.to_arrays());
-    let (success, reasons) = match executed {
-        Ok(verdict) => (verdict.success, verdict.reasons),
-        Err(err) if err.is_bad_input() => (false, vec![format!("not executed: {err}")]),
-        Err(err) => return Err(err.into()),
-    };
+    let verdict = simulator.execute(&args.task, args.seed, &simulator.at_control_rate(&trajectory)?)?;
 
     let masks = answer
         .masks_png_base64
@@ -222,9 +214,9 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         .transpose()
         .map_err(|err| Failure::Environment(format!("the server's masks are not base64: {err}")))?;
     let arrays = trajectory.to_arrays();
-    let overlay = bridge.sim_draw_trajectory(image.clone(), masks, arrays.position, arrays.gripper)?;
+    let overlay = bridge.sim_draw_trajectory(scene.image.clone(), masks, arrays.position, arrays.gripper)?;
     let outputs = [
-        ("image.png", image),
+        ("image.png", scene.image),
         ("overlay.png", overlay),
         ("trajectory.json", trajectory.to_json_string().into_bytes()),
         ("response.json", answer_text.into_bytes()),
@@ -233,7 +225,25 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         write_atomically(&args.out.join(name), contents)?;
     }
     let stopped_cleanly = server.stop(Duration::from_secs(30));
+    let mut report = answer_report(&args, &prompt, &answer, round_trip_s, &trajectory);
+    report.push(format!(
+        "simulator  {}",
+        if verdict.success { "SUCCESS: the task was completed".to_owned() } else { format!("FAILED: {}", verdict.reasons.join("; ")) }
+    ));
+    report.push(format!("server     stopped by SIGTERM, {}", if stopped_cleanly { "exit 0" } else { "did NOT exit cleanly" }));
+    report.push(format!(
+        "wrote      {}",
+        outputs.iter().map(|(name, _)| args.out.join(name).display().to_string()).collect::<Vec<_>>().join(", ")
+    ));
+    print_stdout(&report.join("\n"))?;
+    if !stopped_cleanly {
+        return Err(Failure::Environment("the server did not shut down cleanly on SIGTERM".into()));
+    }
+    Ok(())
+}
 
+/// The report's lines on the scene, the objects the server found and its timings.
+fn answer_report(args: &DemoArgs, prompt: &str, answer: &TrajectoryResponse, round_trip_s: f64, trajectory: &Trajectory) -> Vec<String> {
     let t = &answer.timings_ms;
     let mut report = vec![
         format!("scene      {} seed {} (held-out), prompt {prompt:?}", args.task, args.seed),
@@ -255,18 +265,5 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         t.queue_ms, t.segment_ms, t.infer_ms, t.total_ms, round_trip_s * 1e3
     ));
     report.push(format!("trajectory {} frames at {} Hz ({:.1} s)", trajectory.frames.len(), trajectory.fps, trajectory.duration()));
-    report.push(format!(
-        "simulator  {}",
-        if success { "SUCCESS: the task was completed".to_owned() } else { format!("FAILED: {}", reasons.join("; ")) }
-    ));
-    report.push(format!("server     stopped by SIGTERM, {}", if stopped_cleanly { "exit 0" } else { "did NOT exit cleanly" }));
-    report.push(format!(
-        "wrote      {}",
-        outputs.iter().map(|(name, _)| args.out.join(name).display().to_string()).collect::<Vec<_>>().join(", ")
-    ));
-    print_stdout(&report.join("\n"))?;
-    if !stopped_cleanly {
-        return Err(Failure::Environment("the server did not shut down cleanly on SIGTERM".into()));
-    }
-    Ok(())
+    report
 }

@@ -2,8 +2,8 @@
 //! its own module).
 //!
 //! Training runs in Python (torch) through the bridge; this module validates arguments before
-//! the interpreter starts, and runs the evaluation loop: render a held-out scene, predict from
-//! image + masks, execute by physics, compare with the expert (MED), report.
+//! the interpreter starts, and runs the evaluation loop: per held-out scene, an episode of
+//! [`crate::episode`] with the prediction made in process, then the summary.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -14,17 +14,14 @@ use serde::Serialize;
 use serde_json::{Map, Value};
 
 use super::print_stdout;
-use crate::seeds::{first_heldout_seed, heldout_seed_range, validation_seed_range};
-use crate::segmentation::{BackendArgs, run_segmenter};
 use super::shared::{command_line, trajectory_of};
-use crate::files::read_bytes;
-use crate::model_dir::{check_training_outputs, model_task};
 use super::stats::{mean, quantile, wilson_interval_95};
+use crate::episode::Simulator;
 use crate::failure::Failure;
 use crate::files::write_atomically;
-use crate::trajectory::Trajectory;
-use crate::trajectory::compare::mean_euclidean_distance_cm;
-use crate::trajectory::resample::{ResampleTarget, resample};
+use crate::model_dir::{check_training_outputs, model_task};
+use crate::seeds::{first_heldout_seed, heldout_seed_range, validation_seed_range};
+use crate::segmentation::{BackendArgs, run_segmenter};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -180,125 +177,22 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
     }
     let started = Instant::now();
     let bridge = Bridge::start_default()?;
-    let control_hz = bridge.sim_control_hz()?;
-    let scratch = tempfile::tempdir().map_err(|err| {
-        Failure::Environment(format!("cannot create a temporary directory: {err}"))
-    })?;
-    let mut episodes = Vec::new();
+    let simulator = Simulator::new(bridge)?;
+    let mut episodes: Vec<Episode> = Vec::new();
     for (index, seed) in (args.seed_start..=last).enumerate() {
-        let scene_dir = scratch.path().join(format!("scene-{seed}"));
-        let scene = bridge.sim_render(&args.task, seed, &scene_dir)?;
-        let image = read_bytes(&scene_dir.join("image.png"), "rendered image")?;
-        let call = Instant::now();
-        let (masks, objects, segmentation) = if args.from_prompt {
-            // A prompt the segmenter cannot ground in the image is a failed episode.
-            match run_segmenter(bridge, image.clone(), &scene.prompt, &args.segmenter, Some(&args.task), false) {
-                Ok(found) => (found.labels_png, found.slot_names, Some(found.document)),
-                Err(Failure::BadInput(message)) => {
-                    let episode = Episode::unpredicted(seed, format!("not segmented: {message}"), call.elapsed().as_secs_f64() * 1e3);
-                    eprintln!("[{}/{}] seed {seed}: FAIL ({})", index + 1, args.episodes, episode.reasons.join("; "));
-                    episodes.push(episode);
-                    continue;
-                }
-                Err(other) => return Err(other),
-            }
-        } else {
-            (read_bytes(&scene_dir.join("masks.png"), "rendered masks")?, scene.objects.clone(), None)
+        let episode = run_episode(bridge, &simulator, &args, seed)?;
+        let successes = episodes.iter().filter(|e| e.success).count() + usize::from(episode.success);
+        let outcome = match (episode.success, episode.med_cm.is_finite()) {
+            (true, _) => format!("success MED {:.2} cm, {:.0} ms", episode.med_cm, episode.latency_ms),
+            (false, true) => format!("FAIL MED {:.2} cm, {:.0} ms ({})", episode.med_cm, episode.latency_ms, episode.reasons.join("; ")),
+            (false, false) => format!("FAIL ({})", episode.reasons.join("; ")),
         };
-        // A scene the model cannot take (e.g. fewer objects than every training scene had)
-        // is a failed episode, not a failed evaluation.
-        let prediction = match bridge.core_predict(&args.model, image, masks, objects) {
-            Ok(prediction) => prediction,
-            Err(BridgeError::InvalidInput(message)) => {
-                let episode = Episode::unpredicted(seed, format!("not predicted: {message}"), call.elapsed().as_secs_f64() * 1e3);
-                eprintln!("[{}/{}] seed {seed}: FAIL ({})", index + 1, args.episodes, episode.reasons.join("; "));
-                episodes.push(episode);
-                continue;
-            }
-            Err(other) => return Err(other.into()),
-        };
-        let latency_ms = call.elapsed().as_secs_f64() * 1e3;
-        let predicted = resample(
-            &trajectory_of(&prediction)?,
-            ResampleTarget::Fps(control_hz),
-        )?;
-        // A trajectory the simulator refuses (a frame outside the workspace) is a failed
-        // episode, not a failed evaluation.
-        let (success, reasons) = match bridge.sim_execute(&args.task, seed, predicted.to_arrays()) {
-            Ok(verdict) => (verdict.success, verdict.reasons),
-            Err(BridgeError::InvalidInput(message)) => {
-                (false, vec![format!("not executed: {message}")])
-            }
-            Err(other) => return Err(other.into()),
-        };
-        let (expert, _) = bridge.sim_expert(&args.task, seed)?;
-        let expert = Trajectory::from_arrays(&expert, Map::new()).map_err(|err| {
-            Failure::Environment(format!(
-                "the {} expert produced an invalid trajectory: {err}",
-                args.task
-            ))
-        })?;
-        let med_cm =
-            mean_euclidean_distance_cm(&predicted, &expert).map_err(Failure::Environment)?;
-        episodes.push(Episode {
-            seed,
-            success,
-            reasons,
-            med_cm,
-            latency_ms,
-            scene_psnr_db: prediction.scene_psnr_db,
-            objects: prediction.objects,
-            timings_ms: prediction.timings_ms,
-            segmentation,
-        });
-        let successes = episodes.iter().filter(|e| e.success).count();
-        let episode = episodes.last().expect("just pushed");
-        eprintln!(
-            "[{}/{}] seed {seed}: {} MED {:.2} cm, {:.0} ms{}  (success so far {successes}/{})",
-            index + 1,
-            args.episodes,
-            if episode.success { "success" } else { "FAIL" },
-            episode.med_cm,
-            episode.latency_ms,
-            if episode.success {
-                String::new()
-            } else {
-                format!(" ({})", episode.reasons.join("; "))
-            },
-            episodes.len()
-        );
+        eprintln!("[{}/{}] seed {seed}: {outcome}  (success so far {successes}/{})", index + 1, args.episodes, index + 1);
+        episodes.push(episode);
     }
-    let warm: Vec<f64> = episodes
-        .iter()
-        .skip(usize::from(episodes.len() > 1))
-        .map(|e| e.latency_ms)
-        .collect();
-    let ious = episodes
-        .iter()
-        .flat_map(|e| e.objects.iter().filter_map(|o| o.mask_iou));
-    let successes = episodes.iter().filter(|e| e.success).count();
-    let summary = EvalSummary {
-        model: args.model.display().to_string(),
-        task: args.task.clone(),
-        episodes: episodes.len(),
-        seed_start: args.seed_start,
-        success_rate: successes as f64 / episodes.len() as f64,
-        success_interval_95: wilson_interval_95(successes, episodes.len()),
-        med_cm: mean(episodes.iter().map(|e| e.med_cm)),
-        latency_ms_p50: quantile(&warm, 0.5),
-        latency_ms_p95: quantile(&warm, 0.95),
-        scene_psnr_db_mean: mean(episodes.iter().filter_map(|e| e.scene_psnr_db)),
-        mask_iou_mean: mean(ious),
-        wall_time_s: started.elapsed().as_secs_f64(),
-        per_episode: episodes,
-    };
+    let summary = EvalSummary::new(&args, episodes, started);
     if let Some(path) = &args.json {
-        write_atomically(
-            path,
-            serde_json::to_string_pretty(&summary)
-                .expect("summary serialises")
-                .as_bytes(),
-        )?;
+        write_atomically(path, serde_json::to_string_pretty(&summary).expect("summary serialises").as_bytes())?;
     }
     print_stdout(&format!(
         "{} on {} {scenes} {} scenes (seeds {}..={last}): success {:.2} (95% interval {:.2}-{:.2}), MED {:.2} cm, \
@@ -318,3 +212,63 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
     ))
 }
 
+/// One episode of `cnfmp eval`: render, find the objects (the simulator's masks, or the
+/// segmenter from the prompt), predict, execute, compare with the expert. A scene the
+/// segmenter cannot ground or the model cannot take is a failed episode, not a failed
+/// evaluation.
+fn run_episode(bridge: &Bridge, simulator: &Simulator, args: &EvalArgs, seed: u64) -> Result<Episode, Failure> {
+    let scene = simulator.render(&args.task, seed)?;
+    let call = Instant::now();
+    let elapsed_ms = || call.elapsed().as_secs_f64() * 1e3;
+    let (masks, objects, segmentation) = if args.from_prompt {
+        match run_segmenter(bridge, scene.image.clone(), &scene.info.prompt, &args.segmenter, Some(&args.task), false) {
+            Ok(found) => (found.labels_png, found.slot_names, Some(found.document)),
+            Err(Failure::BadInput(message)) => return Ok(Episode::unpredicted(seed, format!("not segmented: {message}"), elapsed_ms())),
+            Err(other) => return Err(other),
+        }
+    } else {
+        (scene.masks, scene.info.objects, None)
+    };
+    let prediction = match bridge.core_predict(&args.model, scene.image, masks, objects) {
+        Ok(prediction) => prediction,
+        Err(BridgeError::InvalidInput(message)) => return Ok(Episode::unpredicted(seed, format!("not predicted: {message}"), elapsed_ms())),
+        Err(other) => return Err(other.into()),
+    };
+    let latency_ms = elapsed_ms();
+    let predicted = simulator.at_control_rate(&trajectory_of(&prediction)?)?;
+    let verdict = simulator.execute(&args.task, seed, &predicted)?;
+    Ok(Episode {
+        seed,
+        success: verdict.success,
+        reasons: verdict.reasons,
+        med_cm: simulator.med_cm(&args.task, seed, &predicted)?,
+        latency_ms,
+        scene_psnr_db: prediction.scene_psnr_db,
+        objects: prediction.objects,
+        timings_ms: prediction.timings_ms,
+        segmentation,
+    })
+}
+
+impl EvalSummary {
+    fn new(args: &EvalArgs, episodes: Vec<Episode>, started: Instant) -> Self {
+        let warm: Vec<f64> = episodes.iter().skip(usize::from(episodes.len() > 1)).map(|e| e.latency_ms).collect();
+        let ious = episodes.iter().flat_map(|e| e.objects.iter().filter_map(|o| o.mask_iou));
+        let successes = episodes.iter().filter(|e| e.success).count();
+        EvalSummary {
+            model: args.model.display().to_string(),
+            task: args.task.clone(),
+            episodes: episodes.len(),
+            seed_start: args.seed_start,
+            success_rate: successes as f64 / episodes.len() as f64,
+            success_interval_95: wilson_interval_95(successes, episodes.len()),
+            med_cm: mean(episodes.iter().map(|e| e.med_cm)),
+            latency_ms_p50: quantile(&warm, 0.5),
+            latency_ms_p95: quantile(&warm, 0.95),
+            scene_psnr_db_mean: mean(episodes.iter().filter_map(|e| e.scene_psnr_db)),
+            mask_iou_mean: mean(ious),
+            wall_time_s: started.elapsed().as_secs_f64(),
+            per_episode: episodes,
+        }
+    }
+}

@@ -188,6 +188,28 @@ struct ScenesSummary {
     per_scene: Vec<SceneReport>,
 }
 
+impl ScenesSummary {
+    /// The summary of a run that started at `started` and began predicting at `loop_started`.
+    /// The first prediction pays the start-up; the scenes refused before reaching the model
+    /// say nothing about its speed.
+    fn new(model: &Path, scenes: usize, reports: Vec<SceneReport>, started: Instant, loop_started: Instant) -> Self {
+        let latencies: Vec<f64> = reports.iter().filter(|r| r.predicted).map(|r| r.latency_ms).collect();
+        let warm = &latencies[usize::from(latencies.len() > 1)..];
+        let warm_p50 = quantile(warm, 0.5);
+        ScenesSummary {
+            model: model.display().to_string(),
+            scenes,
+            predicted: latencies.len(),
+            failed: reports.len() - latencies.len(),
+            wall_time_s: started.elapsed().as_secs_f64(),
+            startup_s: latencies.first().map_or(f64::NAN, |first| (loop_started - started).as_secs_f64() + (first - warm_p50).max(0.0) / 1e3),
+            latency_ms_p50: warm_p50,
+            latency_ms_p95: quantile(warm, 0.95),
+            per_scene: reports,
+        }
+    }
+}
+
 /// `cnfmp predict --scenes`: every scene of `scenes` in this one process, a trajectory file
 /// per scene in `out` as soon as it is predicted. A scene with bad input is reported and
 /// skipped; the command then exits with code 2 after the others are done.
@@ -232,22 +254,7 @@ fn predict_scenes(model: &Path, scenes: &Path, backend: &BackendArgs, out: &Path
         progress.advance(1);
     }
     progress.finish();
-    // The first prediction pays the start-up; the scenes refused before reaching the model
-    // say nothing about its speed.
-    let latencies: Vec<f64> = reports.iter().filter(|r| r.predicted).map(|r| r.latency_ms).collect();
-    let warm = &latencies[usize::from(latencies.len() > 1)..];
-    let warm_p50 = quantile(warm, 0.5);
-    let summary = ScenesSummary {
-        model: model.display().to_string(),
-        scenes: scenes.len(),
-        predicted: latencies.len(),
-        failed: reports.len() - latencies.len(),
-        wall_time_s: started.elapsed().as_secs_f64(),
-        startup_s: latencies.first().map_or(f64::NAN, |first| (loop_started - started).as_secs_f64() + (first - warm_p50).max(0.0) / 1e3),
-        latency_ms_p50: warm_p50,
-        latency_ms_p95: quantile(warm, 0.95),
-        per_scene: reports,
-    };
+    let summary = ScenesSummary::new(model, scenes.len(), reports, started, loop_started);
     let text = serde_json::to_string_pretty(&summary).expect("summary serialises");
     write_atomically(&out.join(SUMMARY_FILE), format!("{text}\n").as_bytes())?;
     outcome?;

@@ -21,6 +21,7 @@ use super::catalog::{Catalog, ServedModel};
 use super::error::{ApiError, ErrorCode, InternalDetail, REQUEST_ID, request_id};
 use super::metrics::Metrics;
 use super::pipeline::{FoundObjects, Pipeline, PipelineJob, PipelineOutput, SceneObjects};
+use segmenter_bridge::Prediction;
 use super::queue::Refused;
 use crate::scene_masks::{self, CoarseMasks, MaskError};
 use crate::trajectory::Trajectory;
@@ -270,6 +271,38 @@ fn build_response(
             }
         })
         .collect();
+    let objects = detected_objects(served, &found, &prediction);
+    let segmenter = match &found {
+        FoundObjects::Segmented(found) => Some(found.document.backend.clone()),
+        FoundObjects::Given(_) => None,
+    };
+    let masks_png_base64 = include_masks.then(|| {
+        let png = match &found {
+            FoundObjects::Segmented(found) => found.labels_png.clone(),
+            FoundObjects::Given(masks) => masks.png(),
+        };
+        base64::engine::general_purpose::STANDARD.encode(png)
+    });
+    Ok(TrajectoryResponse {
+        fps: trajectory.fps,
+        frames,
+        model: ModelRef {
+            name: served.summary.name.clone(),
+            task: served.summary.task.clone(),
+            model_type: served.summary.model_type.clone(),
+        },
+        prompt,
+        segmenter,
+        objects,
+        scene_psnr_db: finite(prediction.scene_psnr_db),
+        timings_ms,
+        masks_png_base64,
+    })
+}
+
+/// Each object of the answer: what was found (by the segmenter, or in the given masks), the
+/// slot it filled and what inference made of it.
+fn detected_objects(served: &ServedModel, found: &FoundObjects, prediction: &Prediction) -> Vec<DetectedObject> {
     let estimate = |slot: Option<u32>| slot.and_then(|slot| prediction.objects.iter().find(|o| o.slot == slot));
     let inferred = |slot: Option<u32>| {
         let estimate = estimate(slot);
@@ -280,7 +313,7 @@ fn build_response(
         });
         (estimate.and_then(|e| e.weights.clone()), confidence)
     };
-    let objects: Vec<DetectedObject> = match &found {
+    match found {
         FoundObjects::Segmented(found) => {
             let slots = found.document.slots.clone().unwrap_or_default();
             found
@@ -329,33 +362,7 @@ fn build_response(
                 }
             })
             .collect(),
-    };
-    let segmenter = match &found {
-        FoundObjects::Segmented(found) => Some(found.document.backend.clone()),
-        FoundObjects::Given(_) => None,
-    };
-    let masks_png_base64 = include_masks.then(|| {
-        let png = match &found {
-            FoundObjects::Segmented(found) => found.labels_png.clone(),
-            FoundObjects::Given(masks) => masks.png(),
-        };
-        base64::engine::general_purpose::STANDARD.encode(png)
-    });
-    Ok(TrajectoryResponse {
-        fps: trajectory.fps,
-        frames,
-        model: ModelRef {
-            name: served.summary.name.clone(),
-            task: served.summary.task.clone(),
-            model_type: served.summary.model_type.clone(),
-        },
-        prompt,
-        segmenter,
-        objects,
-        scene_psnr_db: finite(prediction.scene_psnr_db),
-        timings_ms,
-        masks_png_base64,
-    })
+    }
 }
 
 /// Base64 with or without padding (clients differ).

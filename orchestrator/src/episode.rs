@@ -1,0 +1,77 @@
+//! One simulated episode, the steps every evaluation shares: render a scene of (task, seed),
+//! execute a predicted trajectory by physics, judge it, and measure its distance to the
+//! scripted expert (MED). `cnfmp eval` predicts in process between render and execute,
+//! `cnfmp demo` over HTTP; the Table-I benchmark runs `cnfmp eval`.
+
+use segmenter_bridge::{Bridge, BridgeError, SceneInfo};
+use serde_json::Map;
+use tempfile::TempDir;
+
+use crate::failure::Failure;
+use crate::files::read_bytes;
+use crate::trajectory::Trajectory;
+use crate::trajectory::compare::mean_euclidean_distance_cm;
+use crate::trajectory::resample::{ResampleTarget, resample};
+
+/// The simulator as evaluations use it: rendered scenes go to a scratch directory that
+/// lives as long as this value.
+pub struct Simulator<'a> {
+    bridge: &'a Bridge,
+    /// The simulator's control rate (Hz): trajectories are executed and compared at it.
+    control_hz: f64,
+    scratch: TempDir,
+}
+
+/// A rendered scene: what a camera saw and what the simulator knows of it.
+pub struct RenderedScene {
+    pub info: SceneInfo,
+    /// The image (PNG) and the label map of its objects (PNG; label k = `info.objects[k-1]`).
+    pub image: Vec<u8>,
+    pub masks: Vec<u8>,
+}
+
+/// The judge's verdict on a trajectory, or why it could not be executed.
+pub struct Verdict {
+    pub success: bool,
+    /// Why it failed (empty on success).
+    pub reasons: Vec<String>,
+}
+
+impl<'a> Simulator<'a> {
+    pub fn new(bridge: &'a Bridge) -> Result<Self, Failure> {
+        let scratch = tempfile::tempdir()
+            .map_err(|err| Failure::Environment(format!("cannot create a temporary directory: {err}")))?;
+        Ok(Simulator { bridge, control_hz: bridge.sim_control_hz()?, scratch })
+    }
+
+    /// Renders the scene of (`task`, `seed`).
+    pub fn render(&self, task: &str, seed: u64) -> Result<RenderedScene, Failure> {
+        let dir = self.scratch.path().join(format!("{task}-{seed}"));
+        let info = self.bridge.sim_render(task, seed, &dir)?;
+        let read = |name: &str, what: &str| read_bytes(&dir.join(name), what);
+        Ok(RenderedScene { image: read("image.png", "rendered image")?, masks: read("masks.png", "rendered masks")?, info })
+    }
+
+    /// `trajectory` resampled at the control rate, as it is executed and compared.
+    pub fn at_control_rate(&self, trajectory: &Trajectory) -> Result<Trajectory, Failure> {
+        Ok(resample(trajectory, ResampleTarget::Fps(self.control_hz))?)
+    }
+
+    /// Executes `trajectory` (at the control rate) in the scene and judges it. A trajectory
+    /// the simulator refuses (a frame outside the workspace) is a failed episode.
+    pub fn execute(&self, task: &str, seed: u64, trajectory: &Trajectory) -> Result<Verdict, Failure> {
+        match self.bridge.sim_execute(task, seed, trajectory.to_arrays()) {
+            Ok(report) => Ok(Verdict { success: report.success, reasons: report.reasons }),
+            Err(BridgeError::InvalidInput(message)) => Ok(Verdict { success: false, reasons: vec![format!("not executed: {message}")] }),
+            Err(other) => Err(other.into()),
+        }
+    }
+
+    /// MED (cm) of `trajectory` (at the control rate) to the scripted expert's.
+    pub fn med_cm(&self, task: &str, seed: u64, trajectory: &Trajectory) -> Result<f64, Failure> {
+        let (expert, _) = self.bridge.sim_expert(task, seed)?;
+        let expert = Trajectory::from_arrays(&expert, Map::new())
+            .map_err(|err| Failure::Environment(format!("the {task} expert produced an invalid trajectory: {err}")))?;
+        mean_euclidean_distance_cm(trajectory, &expert).map_err(Failure::Environment)
+    }
+}
