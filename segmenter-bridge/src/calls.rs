@@ -102,7 +102,7 @@ impl Bridge {
         let model_dir = model_dir.map(Path::to_path_buf);
         let json = self.call(move |py| {
             let run = || -> PyResult<String> {
-                let report = py.import("cnfmp.doctor")?.call_method1("startup_costs", (model_dir,))?;
+                let report = py.import("cnfmp.doctor")?.call_method("startup_costs", (), Some(&kwargs!(py, model_dir = model_dir)))?;
                 py.import("json")?.call_method1("dumps", (report,))?.extract()
             };
             run().map_err(|err| BridgeError::python(py, &err))
@@ -121,7 +121,7 @@ impl Bridge {
             let sent_at = values.as_ptr() as usize;
             let sent = values.into_pyarray(py);
             let run = || -> PyResult<Bound<'_, PyArrayDyn<f64>>> {
-                let back = py.import("cnfmp.runtime")?.call_method1("bridge_selftest", (sent,))?;
+                let back = py.import("cnfmp.runtime")?.call_method("bridge_selftest", (), Some(&kwargs!(py, array = sent)))?;
                 Ok(back.cast_into::<PyArrayDyn<f64>>()?)
             };
             let back = run().map_err(|err| BridgeError::python(py, &err))?;

@@ -130,17 +130,17 @@ impl Bridge {
     /// Loads the model in `model_dir` (it stays resident for later predictions) and
     /// describes it (`cnfmp.core.api.describe`).
     pub fn core_describe(&self, model_dir: &Path) -> Result<ModelDescription, BridgeError> {
-        self.call_json("cnfmp.core.api", "describe", (model_dir.to_path_buf(),))
+        let model_dir = model_dir.to_path_buf();
+        self.call_json("cnfmp.core.api", "describe", move |py| Ok(kwargs!(py, model_dir = model_dir)))
     }
 
     /// Trains a model (`cnfmp.core.api.train`); progress lines go to stderr.
     pub fn core_train(&self, request: &TrainRequest) -> Result<TrainReport, BridgeError> {
         let r = request.clone();
-        self.call_json(
-            "cnfmp.core.api",
-            "train",
-            (r.dataset, r.out, r.config, r.steps, r.seed, r.command, r.model_type),
-        )
+        self.call_json("cnfmp.core.api", "train", move |py| {
+            Ok(kwargs!(py, dataset_dir = r.dataset, out_dir = r.out, config_path = r.config, steps = r.steps, seed = r.seed,
+                       command = r.command, model_type = r.model_type))
+        })
     }
 
     /// Predicts the trajectory for an encoded scene image and label-map masks of the same
@@ -154,16 +154,10 @@ impl Bridge {
     ) -> Result<Prediction, BridgeError> {
         let model_dir = model_dir.to_path_buf();
         let json: String = self.call(move |py| {
-            let args = (
-                model_dir,
-                PyBytes::new(py, &image),
-                PyBytes::new(py, &masks),
-                objects,
-            );
             let run = || -> PyResult<String> {
-                py.import("cnfmp.core.api")?
-                    .call_method1("predict", args)?
-                    .extract()
+                let kwargs = kwargs!(py, model_dir = model_dir, image_png = PyBytes::new(py, &image),
+                                     masks_png = PyBytes::new(py, &masks), objects = objects);
+                py.import("cnfmp.core.api")?.call_method("predict", (), Some(&kwargs))?.extract()
             };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
@@ -177,10 +171,11 @@ impl Bridge {
     /// for each method, from `results_json` (a list of objects with `method`, `task`, `med_cm`,
     /// `success_rate`), methods and tasks in the given order. Returns PNG bytes.
     pub fn core_table_chart(&self, results_json: &str, methods: &[String], tasks: &[String]) -> Result<Vec<u8>, BridgeError> {
-        let args = (results_json.to_owned(), methods.to_vec(), tasks.to_vec());
+        let (results_json, methods, tasks) = (results_json.to_owned(), methods.to_vec(), tasks.to_vec());
         self.call(move |py| {
             let run = || -> PyResult<Vec<u8>> {
-                py.import("cnfmp.core.report")?.call_method1("table_chart", args)?.extract()
+                let kwargs = kwargs!(py, results_json = results_json, methods = methods, tasks = tasks);
+                py.import("cnfmp.core.report")?.call_method("table_chart", (), Some(&kwargs))?.extract()
             };
             run().map_err(|err| BridgeError::python(py, &err))
         })

@@ -103,35 +103,48 @@ impl Bridge {
     /// Writes the staged episode folders `staging/<name>` (in order) as a LeRobot v3.0 dataset
     /// at `out` (must not exist) at `fps`, with a progress bar on stderr.
     pub fn write_staged(&self, staging: &Path, episodes: Vec<String>, out: &Path, fps: u32) -> Result<StagedWriteReport, BridgeError> {
-        self.call_json("cnfmp.data.lerobot_io", "write_staged", (staging.to_path_buf(), episodes, out.to_path_buf(), fps))
+        let (staging, out) = (staging.to_path_buf(), out.to_path_buf());
+        self.call_json("cnfmp.data.lerobot_io", "write_staged", move |py| {
+            Ok(kwargs!(py, staging_dir = staging, episode_dirs = episodes, out_dir = out, fps = fps))
+        })
     }
 
     /// The episodes of the LeRobot dataset at `dir`.
     pub fn dataset_episodes(&self, dir: &Path) -> Result<DatasetEpisodes, BridgeError> {
-        self.call_json("cnfmp.data.lerobot_io", "episodes_of", (dir.to_path_buf(),))
+        let dir = dir.to_path_buf();
+        self.call_json("cnfmp.data.lerobot_io", "episodes_of", move |py| Ok(kwargs!(py, dataset_dir = dir)))
     }
 
     /// Writes episode `index` of the dataset at `dir` as a raw episode folder `out` (images,
     /// masks, objects, meta) and returns its trajectory (from `observation.state`), which the
     /// caller writes.
     pub fn export_episode(&self, dir: &Path, index: u64, out: &Path) -> Result<TrajectoryArrays, BridgeError> {
-        self.call_dict("cnfmp.data.lerobot_io", "export_episode", (dir.to_path_buf(), index, out.to_path_buf()), TrajectoryArrays::from_dict)
+        let (dir, out) = (dir.to_path_buf(), out.to_path_buf());
+        self.call_dict(
+            "cnfmp.data.lerobot_io",
+            "export_episode",
+            move |py| Ok(kwargs!(py, dataset_dir = dir, index = index, out_dir = out)),
+            TrajectoryArrays::from_dict,
+        )
     }
 
     /// Reads the dataset at `dir` back with lerobot's `LeRobotDataset` (`cnfmp dataset validate`).
     pub fn inspect_dataset(&self, dir: &Path) -> Result<DatasetInspection, BridgeError> {
-        self.call_json("cnfmp.data.lerobot_io", "inspect", (dir.to_path_buf(),))
+        let dir = dir.to_path_buf();
+        self.call_json("cnfmp.data.lerobot_io", "inspect", move |py| Ok(kwargs!(py, dataset_dir = dir)))
     }
 
     /// The demos of a robomimic-style HDF5 file.
     pub fn hdf5_demos(&self, file: &Path) -> Result<Hdf5Listing, BridgeError> {
-        self.call_json("cnfmp.data.hdf5", "list_demos", (file.to_path_buf(),))
+        let file = file.to_path_buf();
+        self.call_json("cnfmp.data.hdf5", "list_demos", move |py| Ok(kwargs!(py, path = file)))
     }
 
     /// Reads one demo of an HDF5 file; a malformed demo is [`BridgeError::InvalidInput`]
     /// naming the HDF5 path at fault.
     pub fn hdf5_demo(&self, file: &Path, demo: &str, camera: Option<String>) -> Result<Hdf5Demo, BridgeError> {
-        self.call_dict("cnfmp.data.hdf5", "read_demo", (file.to_path_buf(), demo.to_owned(), camera), |dict| {
+        let (file, demo) = (file.to_path_buf(), demo.to_owned());
+        self.call_dict("cnfmp.data.hdf5", "read_demo", move |py| Ok(kwargs!(py, path = file, demo = demo, camera = camera)), |dict| {
             Ok(Hdf5Demo {
                 images: item(dict, "images")?.extract::<PyReadonlyArray4<u8>>()?.as_array().to_owned(),
                 masks: item(dict, "masks")?.extract::<PyReadonlyArray2<u8>>()?.as_array().to_owned(),

@@ -16,6 +16,17 @@
 //! read numpy buffers in place). A Python exception becomes [`BridgeError::Python`] carrying
 //! the exception type, message and the innermost traceback frames.
 
+/// Keyword arguments of a Python call, `kwargs!(py, task = task, seed = seed)`: a dict built
+/// on the Python thread (the `?` inside needs a `PyResult` context). Every call into the
+/// package names its arguments, so a reordered Python signature cannot silently swap them.
+macro_rules! kwargs {
+    ($py:expr $(, $name:ident = $value:expr)* $(,)?) => {{
+        let dict = pyo3::types::PyDict::new($py);
+        $( dict.set_item(stringify!($name), $value)?; )*
+        dict
+    }};
+}
+
 mod calls;
 mod core;
 mod dataset;

@@ -106,15 +106,15 @@ impl Bridge {
     pub fn segment(&self, request: SegmentRequest) -> Result<Segmentation, BridgeError> {
         let (document, labels_png, mask_pngs, overlay_png, slot_names) = self.call(move |py| {
             let run = || -> PyResult<_> {
-                let args = (
-                    PyBytes::new(py, &request.image),
-                    request.prompt,
-                    request.backend,
-                    request.weights,
-                    request.task,
-                    request.pictures,
+                let kwargs = kwargs!(py,
+                    image_data = PyBytes::new(py, &request.image),
+                    prompt = request.prompt,
+                    backend_name = request.backend,
+                    weights = request.weights,
+                    task = request.task,
+                    pictures = request.pictures,
                 );
-                let result = py.import("cnfmp.segmenter.api")?.call_method1("segment", args)?;
+                let result = py.import("cnfmp.segmenter.api")?.call_method("segment", (), Some(&kwargs))?;
                 let dict = result.cast::<pyo3::types::PyDict>()?;
                 Ok((
                     item(dict, "json")?.extract::<String>()?,
@@ -138,7 +138,8 @@ impl Bridge {
         let backend = backend.to_owned();
         self.call(move |py| {
             let run = || -> PyResult<String> {
-                py.import("cnfmp.segmenter.api")?.call_method1("preload", (backend, weights))?.extract()
+                let kwargs = kwargs!(py, name = backend, weights = weights);
+                py.import("cnfmp.segmenter.api")?.call_method("preload", (), Some(&kwargs))?.extract()
             };
             run().map_err(|err| BridgeError::python(py, &err))
         })
@@ -148,7 +149,10 @@ impl Bridge {
     /// the summary JSON.
     pub fn segmenter_train(&self, request: SegmenterTrainRequest) -> Result<serde_json::Value, BridgeError> {
         let r = request;
-        self.call_json("cnfmp.segmenter.api", "train", (r.out, r.config, r.steps, r.seed, r.scenes_scale, r.command))
+        self.call_json("cnfmp.segmenter.api", "train", move |py| {
+            Ok(kwargs!(py, out_dir = r.out, config_path = r.config, steps = r.steps, seed = r.seed,
+                       scenes_scale = r.scenes_scale, command = r.command))
+        })
     }
 
     /// Evaluates a backend on held-out renders (`cnfmp.segmenter.api.evaluate`); progress on
@@ -161,10 +165,9 @@ impl Bridge {
         backend: &str,
         weights: Option<PathBuf>,
     ) -> Result<serde_json::Value, BridgeError> {
-        self.call_json(
-            "cnfmp.segmenter.api",
-            "evaluate",
-            (task.to_owned(), episodes, seed_start, backend.to_owned(), weights),
-        )
+        let (task, backend) = (task.to_owned(), backend.to_owned());
+        self.call_json("cnfmp.segmenter.api", "evaluate", move |py| {
+            Ok(kwargs!(py, task = task, episodes = episodes, seed_start = seed_start, backend_name = backend, weights = weights))
+        })
     }
 }

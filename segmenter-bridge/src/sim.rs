@@ -102,30 +102,30 @@ impl TrajectoryArrays {
 }
 
 impl Bridge {
-    /// Calls `module.function(*args)`, which returns a JSON string, and decodes it.
-    pub(crate) fn call_json<T, A>(&self, module: &'static str, function: &'static str, args: A) -> Result<T, BridgeError>
+    /// Calls `module.function(**kwargs(py))`, which returns a JSON string, and decodes it.
+    pub(crate) fn call_json<T, K>(&self, module: &'static str, function: &'static str, kwargs: K) -> Result<T, BridgeError>
     where
         T: DeserializeOwned + Send + 'static,
-        A: for<'py> pyo3::call::PyCallArgs<'py> + Send + 'static,
+        K: for<'py> FnOnce(Python<'py>) -> PyResult<Bound<'py, PyDict>> + Send + 'static,
     {
         let json: String = self.call(move |py| {
-            let run = || -> PyResult<String> { py.import(module)?.call_method1(function, args)?.extract() };
+            let run = || -> PyResult<String> { py.import(module)?.call_method(function, (), Some(&kwargs(py)?))?.extract() };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
         serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("{module}.{function}: {err}")))
     }
 
-    /// Calls `module.function(*args)`, which returns a dict (of arrays), and reads the
+    /// Calls `module.function(**kwargs(py))`, which returns a dict (of arrays), and reads the
     /// result from it with `read` on the Python thread.
-    pub(crate) fn call_dict<T, A, F>(&self, module: &'static str, function: &'static str, args: A, read: F) -> Result<T, BridgeError>
+    pub(crate) fn call_dict<T, K, F>(&self, module: &'static str, function: &'static str, kwargs: K, read: F) -> Result<T, BridgeError>
     where
         T: Send + 'static,
-        A: for<'py> pyo3::call::PyCallArgs<'py> + Send + 'static,
+        K: for<'py> FnOnce(Python<'py>) -> PyResult<Bound<'py, PyDict>> + Send + 'static,
         F: for<'py> FnOnce(&Bound<'py, PyDict>) -> PyResult<T> + Send + 'static,
     {
         self.call(move |py| {
             let run = || -> PyResult<T> {
-                let result = py.import(module)?.call_method1(function, args)?;
+                let result = py.import(module)?.call_method(function, (), Some(&kwargs(py)?))?;
                 read(result.cast::<PyDict>()?)
             };
             run().map_err(|err| BridgeError::python(py, &err))
@@ -134,7 +134,7 @@ impl Bridge {
 
     /// The benchmark tasks (`cnfmp.sim.api.tasks_json`).
     pub fn sim_tasks(&self) -> Result<Vec<TaskInfo>, BridgeError> {
-        self.call_json("cnfmp.sim.api", "tasks_json", ())
+        self.call_json("cnfmp.sim.api", "tasks_json", |py| Ok(kwargs!(py)))
     }
 
     /// The rate (Hz) at which the simulator executes trajectories; resample to it before
@@ -149,12 +149,14 @@ impl Bridge {
     /// Renders the (task, seed) scene into `out` (image.png, masks.png, objects.json; see
     /// `cnfmp.sim.api.render`). `out` must not exist or be empty.
     pub fn sim_render(&self, task: &str, seed: u64, out: &Path) -> Result<SceneInfo, BridgeError> {
-        self.call_json("cnfmp.sim.api", "render", (task.to_owned(), seed, out.to_path_buf()))
+        let (task, out) = (task.to_owned(), out.to_path_buf());
+        self.call_json("cnfmp.sim.api", "render", move |py| Ok(kwargs!(py, task = task, seed = seed, out_dir = out)))
     }
 
     /// The scripted expert's trajectory for (task, seed), at the control rate, and the prompt.
     pub fn sim_expert(&self, task: &str, seed: u64) -> Result<(TrajectoryArrays, String), BridgeError> {
-        self.call_dict("cnfmp.sim.api", "expert", (task.to_owned(), seed), |dict| {
+        let task = task.to_owned();
+        self.call_dict("cnfmp.sim.api", "expert", move |py| Ok(kwargs!(py, task = task, seed = seed)), |dict| {
             Ok((TrajectoryArrays::from_dict(dict)?, item(dict, "prompt")?.extract()?))
         })
     }
@@ -166,8 +168,11 @@ impl Bridge {
         let task = task.to_owned();
         let json: String = self.call(move |py| {
             let TrajectoryArrays { position, orientation, gripper, .. } = trajectory;
-            let args = (task, seed, position.into_pyarray(py), orientation.into_pyarray(py), gripper.into_pyarray(py));
-            let run = || -> PyResult<String> { py.import("cnfmp.sim.api")?.call_method1("execute", args)?.extract() };
+            let run = || -> PyResult<String> {
+                let kwargs = kwargs!(py, task = task, seed = seed, position = position.into_pyarray(py),
+                                     orientation = orientation.into_pyarray(py), gripper = gripper.into_pyarray(py));
+                py.import("cnfmp.sim.api")?.call_method("execute", (), Some(&kwargs))?.extract()
+            };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
         serde_json::from_str(&json).map_err(|err| BridgeError::Protocol(format!("cnfmp.sim.api.execute: {err}")))
@@ -188,20 +193,23 @@ impl Bridge {
         gripper: Array1<f64>,
     ) -> Result<Vec<u8>, BridgeError> {
         self.call(move |py| {
-            let args = (
-                pyo3::types::PyBytes::new(py, &image),
-                labels.map(|labels| pyo3::types::PyBytes::new(py, &labels)),
-                position.into_pyarray(py),
-                gripper.into_pyarray(py),
-            );
             let run = || -> PyResult<Vec<u8>> {
-                py.import("cnfmp.sim.api")?.call_method1("draw_trajectory", args)?.extract()
+                let kwargs = kwargs!(py,
+                    image_data = pyo3::types::PyBytes::new(py, &image),
+                    labels_data = labels.map(|labels| pyo3::types::PyBytes::new(py, &labels)),
+                    position = position.into_pyarray(py),
+                    gripper = gripper.into_pyarray(py),
+                );
+                py.import("cnfmp.sim.api")?.call_method("draw_trajectory", (), Some(&kwargs))?.extract()
             };
             run().map_err(|err| BridgeError::python(py, &err))
         })
     }
 
     pub fn dataset_generate(&self, task: &str, episodes: u64, seed: u64, out: &Path, workers: u32) -> Result<DatasetReport, BridgeError> {
-        self.call_json("cnfmp.data.generate", "generate_dataset", (task.to_owned(), episodes, seed, out.to_path_buf(), workers))
+        let (task, out) = (task.to_owned(), out.to_path_buf());
+        self.call_json("cnfmp.data.generate", "generate_dataset", move |py| {
+            Ok(kwargs!(py, task = task, episodes = episodes, seed = seed, out_dir = out, workers = workers))
+        })
     }
 }

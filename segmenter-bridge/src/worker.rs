@@ -110,7 +110,7 @@ impl Bridge {
 /// Applies thread limits and offline flags; returns `sys.prefix`.
 fn configure(py: Python<'_>, threads: usize) -> Result<PathBuf, BridgeError> {
     let run = || -> PyResult<PathBuf> {
-        py.import("cnfmp.runtime")?.call_method1("configure", (threads,))?;
+        py.import("cnfmp.runtime")?.call_method("configure", (), Some(&kwargs!(py, threads = threads)))?;
         py.import("sys")?.getattr("prefix")?.extract::<PathBuf>()
     };
     run().map_err(|err| match err.is_instance_of::<pyo3::exceptions::PyModuleNotFoundError>(py) {
