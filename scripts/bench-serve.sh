@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Load benchmark of the HTTP API on loopback: `cnfmp serve` with the shipped models and the
-# default segmenter, wrk POSTing one held-out language_pick_place scene (seed 1000003, as
+# default segmenter; how long it takes to listen and its first request's latency; then wrk POSTing one held-out language_pick_place scene (seed 1000003, as
 # JSON with the image in base64) at 1, 4 and 16 concurrent connections for a fixed duration
 # each. Prints requests/s, p50 and p99 per level, and the answers by status: 200 served,
 # 503 refused because the queue was full (deliberate; the client then waits Retry-After),
@@ -27,6 +27,7 @@ image = base64.b64encode(open(f"{work}/scene/image.png", "rb").read()).decode()
 json.dump({"image_base64": image, "prompt": scene["prompt"]}, open(f"{work}/body.json", "w"))
 PY
 
+started=$(date +%s.%N)
 target/release/cnfmp serve --addr 127.0.0.1:0 >"$work/server.out" 2>"$work/server.log" &
 server_pid=$!
 for _ in $(seq 600); do
@@ -36,12 +37,17 @@ for _ in $(seq 600); do
 done
 url=$(sed -n 's/^cnfmp serve: listening on //p' "$work/server.out")/v1/trajectories
 [[ -n $url ]] || die "the server did not start listening"
-say "server at $url ($(grep -c '^cnfmp serve: loaded' "$work/server.log") models); $(nproc) cores; $(date -u +%F)"
+ready_s=$(awk -v a="$started" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }')
+say "server at $url ($(grep -c '^cnfmp serve: loaded' "$work/server.log") models) listening after $ready_s s; $(nproc) cores; $(date -u +%F)"
 
 export BENCH_BODY="$work/body.json"
 seconds=${BENCH_SECONDS:-30}
-# One warm-up request so the first level does not measure first-call costs.
-curl -sf -o /dev/null -H 'Content-Type: application/json' --data-binary "@$BENCH_BODY" "$url"
+# The first request after listening (the server warms its models up before it listens), then
+# the next one for comparison.
+for which in first second; do
+    seconds_taken=$(curl -sf -o /dev/null -w '%{time_total}' -H 'Content-Type: application/json' --data-binary "@$BENCH_BODY" "$url")
+    echo "$which request: $(awk -v s="$seconds_taken" 'BEGIN { printf "%.0f", 1000 * s }') ms"
+done
 for connections in ${BENCH_LEVELS:-1 4 16}; do
     threads=$(( connections < 2 ? connections : 2 ))
     result=$(wrk -t"$threads" -c"$connections" -d"${seconds}s" --timeout 60s -s scripts/bench-serve.lua "$url" | grep '^RESULT')

@@ -13,7 +13,7 @@ scene-fit PSNR.
 Blind spot: training-range language_pick_place scenes never show the held-out object
 instances (colour and category combinations kept out of training), where inference is
 hardest, so a cheaper setting can look as good here as it is not on held-out scenes
-(docs/benchmarks.md, HTTP API: search_starts 2).
+(docs/experiments.md, HTTP serving: search_starts 2).
 
     .venv/bin/python scripts/validate-inference.py --model models/language_pick_place \\
         --scenes 80 '{}' '{"search_starts": 2}'

@@ -14,7 +14,11 @@ fn quick_table1_trains_and_evaluates_every_method_and_a_rerun_reuses_them() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("reports");
     let shipped_configs = common::repo().join("configs/core");
-    let run = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--episodes", "2", "--configs", arg(&shipped_configs)]);
+    let quick_configs = common::repo().join("configs/quick");
+    let table1 = |configs: &std::path::Path| {
+        cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--episodes", "2", "--configs", arg(configs), "--quick-configs", arg(&quick_configs)])
+    };
+    let run = table1(&shipped_configs);
     assert!(run.status.success(), "{}", stderr(&run));
 
     // The CSV: one row per method and task it is evaluated on (NFMP: wall only), numbers in range.
@@ -52,7 +56,7 @@ fn quick_table1_trains_and_evaluates_every_method_and_a_rerun_reuses_them() {
     assert!(work.join("datasets/wall_avoidance-27-from-900000").is_dir());
 
     // A rerun reuses every job (it says so, and trains nothing) and writes the same table.
-    let rerun = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--episodes", "2", "--configs", arg(&shipped_configs)]);
+    let rerun = table1(&shipped_configs);
     assert!(rerun.status.success(), "{}", stderr(&rerun));
     assert!(stderr(&rerun).contains("reusing 43 finished job(s)"), "{}", stderr(&rerun));
     assert_eq!(std::fs::read_to_string(out.join("table1.csv")).unwrap(), csv);
@@ -66,13 +70,13 @@ fn quick_table1_trains_and_evaluates_every_method_and_a_rerun_reuses_them() {
         std::fs::copy(&file, configs.join(file.file_name().unwrap())).unwrap();
     }
     std::fs::write(configs.join("wall_avoidance.json"), r#"{"num_endpoints": 3}"#).unwrap();
-    let changed = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--episodes", "2", "--configs", arg(&configs)]);
+    let changed = table1(&configs);
     assert!(changed.status.success(), "{}", stderr(&changed));
     for key in ["cnfmp-low", "cnfmp-nogate-low"] {
         assert!(stderr(&changed).contains(&format!("{key}/wall_avoidance: its training config changed")), "{}", stderr(&changed));
     }
     assert!(stderr(&changed).contains("reusing 39 finished job(s)"), "{}", stderr(&changed));
-    let used = std::fs::read_to_string(work.join("configs/cnfmp-low-wall_avoidance.json")).unwrap();
+    let used = std::fs::read_to_string(work.join("configs/cnfmp-low-wall_avoidance.txt")).unwrap();
     assert!(used.contains("\"num_endpoints\": 3"), "{used}");
 }
 
@@ -90,7 +94,8 @@ fn bad_arguments_are_refused_before_any_work() {
     let broken = dir.path().join("configs");
     std::fs::create_dir(&broken).unwrap();
     std::fs::write(broken.join("wall_avoidance.json"), "[1, 2]").unwrap();
-    let run = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--configs", arg(&broken)]);
+    let quick_configs = common::repo().join("configs/quick");
+    let run = cnfmp(&["benchmark", "table1", "--quick", "--out", arg(&out), "--configs", arg(&broken), "--quick-configs", arg(&quick_configs)]);
     assert_eq!(run.status.code(), Some(2), "{}", stderr(&run));
     assert!(stderr(&run).contains("is not a JSON object of config fields"), "{}", stderr(&run));
     assert!(!out.join("table1.md").exists());

@@ -214,7 +214,7 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
     let (status, metrics) = get(&server.url("/metrics"));
     assert_eq!(status, 200);
     assert!(metrics.contains("cnfmp_http_requests_total{route=\"/v1/trajectories\",status=\"503\"}"), "{metrics}");
-    assert!(metrics.contains("cnfmp_http_errors_total{route=\"/v1/trajectories\",code=\"empty_prompt\"} 1"), "{metrics}");
+    assert!(metrics.contains("cnfmp_http_errors_total{route=\"/v1/trajectories\",code=\"invalid_input\"} 1"), "{metrics}");
     assert!(metrics.contains("cnfmp_stage_duration_seconds_count{stage=\"infer\"}"), "{metrics}");
     assert!(metrics.contains("cnfmp_queue_capacity 2"), "{metrics}");
 

@@ -2,7 +2,7 @@
 //! command makes before it creates a new one.
 
 use std::fs;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde_json::Value;
 
@@ -10,15 +10,15 @@ use crate::failure::Failure;
 use crate::files::require_file;
 
 /// Checks shared by every training command before the interpreter starts: the model
-/// directory must be new and a given config file must exist.
-pub fn check_training_outputs(out: &Path, config: Option<&Path>) -> Result<(), Failure> {
+/// directory must be new and every given config file must exist.
+pub fn check_training_outputs(out: &Path, configs: &[PathBuf]) -> Result<(), Failure> {
     if out.exists() {
         return Err(Failure::BadInput(format!(
             "{} already exists; models are never overwritten, choose a new --out",
             out.display()
         )));
     }
-    config.map_or(Ok(()), |config| require_file(config, "config"))
+    configs.iter().try_for_each(|config| require_file(config, "config"))
 }
 
 /// The task a model directory was trained on (its config.json's "task"; empty when the

@@ -9,15 +9,13 @@ use segmenter_bridge::{Bridge, SegmentRequest, Segmentation};
 
 use crate::failure::Failure;
 
-/// Backends `--backend` accepts.
-pub const BACKENDS: [&str; 5] = ["auto", "film", "clipseg", "owlv2-sam", "color"];
-
 /// Which segmenter grounds the prompt.
 #[derive(Debug, Clone, Args)]
 pub struct BackendArgs {
     /// auto (film if its checkpoint loads, else clipseg if $CNFMP_CLIPSEG_DIR is set, else
     /// color), film, clipseg, owlv2-sam (slow on CPU) or color (HSV heuristic, no weights).
-    #[arg(long, default_value = "auto", value_parser = clap::builder::PossibleValuesParser::new(BACKENDS))]
+    // Python checks the name: cnfmp.segmenter.backends holds the one list.
+    #[arg(long, default_value = "auto")]
     pub backend: String,
     /// Weights directory of the backend (film: models/segmenter; clipseg: a CIDAS/clipseg-rd64-refined
     /// download; owlv2-sam: a directory holding owlv2/ and sam/). Never downloaded.

@@ -184,7 +184,6 @@ import numpy as np
 import torch
 mark("import numpy and torch")
 from cnfmp.core import api
-from cnfmp.images import encode_png
 mark("import the inference path")
 from cnfmp.segmenter import api as segmenter_api
 segmenter_api.backend("auto")
@@ -193,14 +192,7 @@ model = sys.argv[1] if len(sys.argv) > 1 else None
 if model:
     names = json.loads(api.describe(model))["objects"] or ["object 1", "object 2"]
     mark("load the model")
-    image = np.full((120, 160, 3), 128, np.uint8)
-    labels = np.zeros((120, 160), np.uint8)
-    for k in range(len(names)):
-        x = 10 + 36 * (k % 4)
-        y = 20 + 50 * (k // 4)
-        image[y:y + 24, x:x + 24] = (60 * k % 256, 200, 90)
-        labels[y:y + 24, x:x + 24] = k + 1
-    scene = (encode_png(image), encode_png(labels), names)
+    scene = api.synthetic_scene(names)
     api.predict(model, *scene)
     mark("first prediction")
     api.predict(model, *scene)

@@ -97,7 +97,7 @@ def test_the_predict_api_serves_baselines_without_objects(demos, tmp_path):
 
 def test_train_picks_the_model_type_and_refuses_mismatched_configs(dataset_dir, tmp_path):
     out = tmp_path / "nogate"
-    report = json.loads(training.train(dataset_dir, str(out), None, steps=3, seed=0, progress=False,
+    report = json.loads(training.train(dataset_dir, str(out), [], steps=3, seed=0, progress=False,
                                        model_type="cnfmp-nogate"))
     assert report["model_type"] == "cnfmp-nogate"
     saved = json.loads((out / models.CONFIG_FILE).read_text())
@@ -108,14 +108,14 @@ def test_train_picks_the_model_type_and_refuses_mismatched_configs(dataset_dir, 
     nfmp_config = tmp_path / "nfmp.json"
     nfmp_config.write_text(json.dumps({"model_type": "nfmp", **TINY_NFMP}))
     with pytest.raises(InputError, match="model_type is 'nfmp', expected 'cnn-cnmp'"):
-        training.train(dataset_dir, str(tmp_path / "x"), str(nfmp_config), steps=3, seed=0, progress=False,
+        training.train(dataset_dir, str(tmp_path / "x"), [str(nfmp_config)], steps=3, seed=0, progress=False,
                        model_type="cnn-cnmp")
     # Without --model-type the config file's type is used.
-    report = json.loads(training.train(dataset_dir, str(tmp_path / "nfmp"), str(nfmp_config), steps=3, seed=0,
+    report = json.loads(training.train(dataset_dir, str(tmp_path / "nfmp"), [str(nfmp_config)], steps=3, seed=0,
                                        progress=False))
     assert report["model_type"] == "nfmp" and set(report["final_losses"]) == {"image_mse", "motion_mse"}
     with pytest.raises(InputError, match="unknown model type 'cnmp'; known: cnfmp, cnfmp-nogate, cnn-cnmp, nfmp"):
-        training.train(dataset_dir, str(tmp_path / "y"), None, steps=3, progress=False, model_type="cnmp")
+        training.train(dataset_dir, str(tmp_path / "y"), [], steps=3, progress=False, model_type="cnmp")
     with pytest.raises(InputError, match="temporal_gating must be false"):
         CnfmpNoGateConfig.from_dict({"temporal_gating": True})
     with pytest.raises(InputError, match="not divisible"):

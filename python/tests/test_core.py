@@ -248,6 +248,18 @@ def png(array: np.ndarray) -> bytes:
     return buffer.getvalue()
 
 
+def test_warm_up_loads_the_model_and_predicts_a_synthetic_scene_of_its_objects(trained, tmp_path):
+    model, _ = trained
+    save_model(model, str(tmp_path))
+    image, labels, names = api.synthetic_scene(["wall", "goal marker"])
+    decoded = np.asarray(Image.open(io.BytesIO(labels)))
+    assert names == ["wall", "goal marker"] and sorted(np.unique(decoded)) == [0, 1, 2]
+    assert np.asarray(Image.open(io.BytesIO(image))).shape == (120, 160, 3)
+    api._LOADED.pop(os.path.abspath(str(tmp_path)), None)
+    assert json.loads(api.warm_up(str(tmp_path))) > 0
+    assert os.path.abspath(str(tmp_path)) in api._LOADED, "the warmed-up model stays resident"
+
+
 def test_predict_api_returns_the_trajectory_schema_and_confidences(trained, tmp_path, demos):
     model, _ = trained
     save_model(model, str(tmp_path))
@@ -547,23 +559,36 @@ def test_train_writes_a_complete_model_directory_and_never_overwrites(dataset_di
     config = tmp_path / "tiny.json"
     config.write_text(json.dumps(TINY))
     out = tmp_path / "model"
-    report = json.loads(training.train(dataset_dir, str(out), str(config), steps=5, seed=1, progress=False,
+    report = json.loads(training.train(dataset_dir, str(out), [str(config)], steps=5, seed=1, progress=False,
                                        command="cnfmp train ..."))
     assert report["steps"] == 5 and report["demos"] == 3 and report["task"] == "wall_avoidance"
     assert sorted(os.listdir(out)) == sorted([CONFIG_FILE, WEIGHTS_FILE, "README.md"])
     assert "cnfmp train ..." in (out / "README.md").read_text()
     assert json.loads((out / CONFIG_FILE).read_text())["seed"] == 1
     with pytest.raises(InputError, match="already exists"):
-        training.train(dataset_dir, str(out), None, steps=5, seed=1, progress=False)
+        training.train(dataset_dir, str(out), [], steps=5, seed=1, progress=False)
     leftovers = [name for name in os.listdir(tmp_path) if name.startswith(".cnfmp-model-")]
     assert leftovers == []
+
+
+def test_config_files_layer_in_order_and_so_do_their_after_training_sections(tmp_path):
+    (tmp_path / "recipe.json").write_text(json.dumps({"steps": 100, "seed": 3, training.AFTER_TRAINING: {"refine_steps": 10, "refine_learning_rate": 0.05}}))
+    (tmp_path / "quick.json").write_text(json.dumps({"steps": 40, training.AFTER_TRAINING: {"refine_steps": 5}}))
+    values, after, source = training.read_configs([str(tmp_path / "recipe.json"), str(tmp_path / "quick.json")])
+    assert values == {"steps": 40, "seed": 3}
+    assert after == {"refine_steps": 5, "refine_learning_rate": 0.05}
+    assert source.endswith("quick.json") and "recipe.json + " in source
+    assert training.read_configs([]) == ({}, {}, "config")
+    (tmp_path / "bad.json").write_text(json.dumps({training.AFTER_TRAINING: [1]}))
+    with pytest.raises(InputError, match="bad.json: after_training must be a JSON object"):
+        training.read_configs([str(tmp_path / "bad.json")])
 
 
 def test_after_training_settings_change_the_shipped_config_but_not_the_weights(dataset_dir, tmp_path):
     settings = {"refine_steps": 3, "refine_learning_rate": 0.07}
     for name, extra in (("plain", {}), ("after", {training.AFTER_TRAINING: settings})):
         (tmp_path / f"{name}.json").write_text(json.dumps({**TINY, **extra}))
-        training.train(dataset_dir, str(tmp_path / name), str(tmp_path / f"{name}.json"), steps=5, seed=2,
+        training.train(dataset_dir, str(tmp_path / name), [str(tmp_path / f"{name}.json")], steps=5, seed=2,
                        progress=False)
     plain, after = (json.loads((tmp_path / name / CONFIG_FILE).read_text()) for name in ("plain", "after"))
     assert (after["refine_steps"], after["refine_learning_rate"]) == (3, 0.07)
@@ -574,7 +599,7 @@ def test_after_training_settings_change_the_shipped_config_but_not_the_weights(d
     # Only inference settings, refused before any training.
     (tmp_path / "bad.json").write_text(json.dumps({**TINY, training.AFTER_TRAINING: {"steps": 3}}))
     with pytest.raises(InputError, match="after_training may set only inference settings.*not steps"):
-        training.train(dataset_dir, str(tmp_path / "bad"), str(tmp_path / "bad.json"), progress=False)
+        training.train(dataset_dir, str(tmp_path / "bad"), [str(tmp_path / "bad.json")], progress=False)
     assert not (tmp_path / "bad").exists()
 
 

@@ -17,8 +17,9 @@ pub struct TrainRequest {
     pub dataset: PathBuf,
     /// Model directory to create (must not exist).
     pub out: PathBuf,
-    /// Optional JSON config (fields of the model type's config dataclass).
-    pub config: Option<PathBuf>,
+    /// JSON config files (fields of the model type's config dataclass), layered in order: a
+    /// later file's field wins. None: the defaults.
+    pub configs: Vec<PathBuf>,
     /// Model type (`cnfmp`, `cnfmp-nogate`, `cnn-cnmp`, `nfmp`); None = the config file's,
     /// else `cnfmp`.
     pub model_type: Option<String>,
@@ -134,11 +135,19 @@ impl Bridge {
         self.call_json("cnfmp.core.api", "describe", move |py| Ok(kwargs!(py, model_dir = model_dir)))
     }
 
+    /// Predicts a synthetic scene with the (resident) model in `model_dir`, so that the first
+    /// real prediction does not pay the first call's costs (`cnfmp.core.api.warm_up`).
+    /// Returns the time it took (ms).
+    pub fn core_warm_up(&self, model_dir: &Path) -> Result<f64, BridgeError> {
+        let model_dir = model_dir.to_path_buf();
+        self.call_json("cnfmp.core.api", "warm_up", move |py| Ok(kwargs!(py, model_dir = model_dir)))
+    }
+
     /// Trains a model (`cnfmp.core.api.train`); progress lines go to stderr.
     pub fn core_train(&self, request: &TrainRequest) -> Result<TrainReport, BridgeError> {
         let r = request.clone();
         self.call_json("cnfmp.core.api", "train", move |py| {
-            Ok(kwargs!(py, dataset_dir = r.dataset, out_dir = r.out, config_path = r.config, steps = r.steps, seed = r.seed,
+            Ok(kwargs!(py, dataset_dir = r.dataset, out_dir = r.out, config_paths = r.configs, steps = r.steps, seed = r.seed,
                        command = r.command, model_type = r.model_type))
         })
     }

@@ -34,8 +34,9 @@ pub struct TrainArgs {
     /// JSON file of config fields (see python/cnfmp/core/configuration_cnfmp.py); defaults
     /// otherwise. An "after_training" object in it holds inference settings the model ships
     /// with, set after training (training's own inference uses the file's other values).
-    #[arg(long)]
-    config: Option<PathBuf>,
+    /// Repeat to layer files: a later file's fields win, after_training field by field.
+    #[arg(long = "config")]
+    configs: Vec<PathBuf>,
     /// Optimisation steps (overrides the config).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     steps: Option<u64>,
@@ -45,12 +46,10 @@ pub struct TrainArgs {
     /// Kind of model: cnfmp (the compositional model), cnfmp-nogate (the ablation without
     /// temporal gating), cnn-cnmp or nfmp (the baselines of the paper's Table I). Default:
     /// the --config file's model_type, else cnfmp.
-    #[arg(long, value_parser = MODEL_TYPES)]
+    // Python checks the name: cnfmp.core.models holds the one registry.
+    #[arg(long)]
     model_type: Option<String>,
 }
-
-/// Every model type `cnfmp train` builds (python/cnfmp/core/models.py).
-pub const MODEL_TYPES: [&str; 4] = ["cnfmp", "cnfmp-nogate", "cnn-cnmp", "nfmp"];
 
 #[derive(Debug, Args)]
 pub struct EvalArgs {
@@ -64,11 +63,11 @@ pub struct EvalArgs {
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000))]
     episodes: u64,
     /// First scene seed; scenes use consecutive seeds, all held-out (1000000..=1999999), or
-    /// all validation scenes (500000..=999999) with --validation.
+    /// all validation scenes (500000..=899999) with --validation.
     #[arg(long, default_value_t = first_heldout_seed())]
     seed_start: u64,
     /// Evaluate on validation scenes instead (give --seed-start too): training-range seeds no
-    /// demonstration uses (500000..=999999), for choosing a recipe or setting without
+    /// demonstration uses (500000..=899999), for choosing a recipe or setting without
     /// touching the held-out ones.
     #[arg(long)]
     validation: bool,
@@ -90,12 +89,12 @@ pub fn train(args: TrainArgs) -> Result<(), Failure> {
             args.dataset.display()
         )));
     }
-    check_training_outputs(&args.out, args.config.as_deref())?;
+    check_training_outputs(&args.out, &args.configs)?;
     let command = command_line();
     let request = TrainRequest {
         dataset: args.dataset,
         out: args.out,
-        config: args.config,
+        configs: args.configs,
         steps: args.steps,
         seed: args.seed,
         model_type: args.model_type,

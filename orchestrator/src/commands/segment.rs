@@ -125,7 +125,7 @@ pub fn run(command: SegmenterCommand) -> Result<(), Failure> {
 }
 
 fn train(args: SegmenterTrainArgs) -> Result<(), Failure> {
-    check_training_outputs(&args.out, args.config.as_deref())?;
+    check_training_outputs(&args.out, args.config.as_slice())?;
     if let Some(scale) = args.scenes_scale
         && !(scale > 0.0 && scale.is_finite())
     {

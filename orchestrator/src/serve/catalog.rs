@@ -54,8 +54,9 @@ fn card_summary(dir: &Path) -> BTreeMap<String, String> {
 }
 
 impl Catalog {
-    /// Loads every core model under `models_dir` through `bridge` (each stays resident),
-    /// reporting each on stderr. `default_model` is used when a request names neither a
+    /// Loads every core model under `models_dir` through `bridge` (each stays resident and
+    /// predicts a synthetic scene once, so no request pays first-call costs), reporting each
+    /// on stderr. `default_model` is used when a request names neither a
     /// model nor a task; it must be one of them when there is more than one model.
     pub fn load(bridge: &Bridge, models_dir: &Path, default_model: &str) -> Result<Catalog, Failure> {
         let entries = fs::read_dir(models_dir).map_err(|err| {
@@ -79,8 +80,12 @@ impl Catalog {
             let description: ModelDescription = bridge.core_describe(&dir).map_err(|err| {
                 Failure::from(err).with_context(&format!("cannot load the model {}", dir.display()))
             })?;
+            // The first request must not pay the first prediction's costs.
+            let warm_up_ms = bridge.core_warm_up(&dir).map_err(|err| {
+                Failure::from(err).with_context(&format!("cannot warm up the model {}", dir.display()))
+            })?;
             eprintln!(
-                "cnfmp serve: loaded {name} ({}, {} parameters, objects: {}{})",
+                "cnfmp serve: loaded {name} ({}, {} parameters, objects: {}{}; warm-up {warm_up_ms:.0} ms)",
                 description.task,
                 description.parameters,
                 description.objects.join(", "),

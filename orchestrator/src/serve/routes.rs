@@ -146,7 +146,7 @@ struct TrajectoryInput {
         (status = 413, description = "The body or the image is too large.", body = ErrorResponse),
         (status = 415, description = "Neither multipart/form-data nor application/json.", body = ErrorResponse),
         (status = 422, description = "The prompt cannot drive the model: its objects have no prompt roles, or a needed object is not named or not found in the image. Send the masks instead.", body = ErrorResponse),
-        (status = 500, description = "Internal failure (logged by the server).", body = ErrorResponse),
+        (status = 500, description = "Internal failure: the message gives the request id (also the x-request-id header); the details are in the server's log under it.", body = ErrorResponse),
         (status = 503, description = "Too many requests are waiting; retry after the Retry-After header's seconds.", body = ErrorResponse,
             headers(("Retry-After" = u64, description = "Seconds to wait before retrying."))),
         (status = 504, description = "The request took longer than the server's timeout.", body = ErrorResponse),

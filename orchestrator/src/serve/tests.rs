@@ -177,13 +177,16 @@ fn json_body(value: Value) -> (String, Vec<u8>) {
     ("application/json".into(), value.to_string().into_bytes())
 }
 
+/// A bad request: what it is, its content type and body, the status and code it must get.
+type BadRequest = (&'static str, (String, Vec<u8>), u16, &'static str);
+
 #[tokio::test]
 async fn bad_requests_get_their_4xx_before_any_work_is_queued() {
     let (app, submitted) = app(Behaviour::FailInside);
     let image = png(32, 24);
     let prompt = "put the red block on the tray";
     let long_prompt = "put the block on the tray ".repeat(20);
-    let cases: Vec<(&str, (String, Vec<u8>), u16, &str)> = vec![
+    let cases: Vec<BadRequest> = vec![
         ("not an image", form(Some(b"this is not an image"), &[("prompt", prompt)]), 400, "invalid_image"),
         ("empty image", form(Some(b""), &[("prompt", prompt)]), 400, "invalid_image"),
         ("0x0 image", form(Some(&zero_by_zero_png()), &[("prompt", prompt)]), 400, "invalid_image"),

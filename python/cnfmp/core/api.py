@@ -16,19 +16,19 @@ from cnfmp.core import models
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.data import task_object_labels
 from cnfmp.errors import InputError
-from cnfmp.images import decode_image, decode_labels
+from cnfmp.images import decode_image, decode_labels, encode_png
 
-__all__ = ["describe", "predict", "train"]
+__all__ = ["describe", "predict", "synthetic_scene", "train", "warm_up"]
 
 _LOADED: dict[str, tuple[tuple, object]] = {}
 
 
-def train(dataset_dir: str, out_dir: str, config_path: str | None, steps: int | None, seed: int | None,
+def train(dataset_dir: str, out_dir: str, config_paths: list[str], steps: int | None, seed: int | None,
           command: str, model_type: str | None = None) -> str:
     """See :func:`cnfmp.core.training.train`; progress goes to stderr."""
     from cnfmp.core import training
 
-    return training.train(os.fspath(dataset_dir), os.fspath(out_dir), None if config_path is None else os.fspath(config_path),
+    return training.train(os.fspath(dataset_dir), os.fspath(out_dir), [os.fspath(path) for path in config_paths],
                           steps, seed, command=command, model_type=model_type)
 
 
@@ -124,3 +124,25 @@ def describe(model_dir: str) -> str:
         "parameters": model.model.parameter_count(),
         "roles": roles, "output_fps": c.output_fps, "duration_s": c.duration_s,
     })
+
+
+def synthetic_scene(names: list[str]) -> tuple[bytes, bytes, list[str]]:
+    """A 160x120 grey scene with one flat 24-px square per object name, its label map (both
+    PNG) and the names: what warm-ups and start-up probes predict, never a real scene."""
+    image = np.full((120, 160, 3), 128, np.uint8)
+    labels = np.zeros((120, 160), np.uint8)
+    for k in range(len(names)):
+        x, y = 10 + 36 * (k % 4), 20 + 50 * (k // 4)
+        image[y:y + 24, x:x + 24] = (60 * k % 256, 200, 90)
+        labels[y:y + 24, x:x + 24] = k + 1
+    return encode_png(image), encode_png(labels), list(names)
+
+
+def warm_up(model_dir: str) -> str:
+    """Loads `model_dir` and predicts a synthetic scene with it, so that a server's first real
+    request does not pay the first call's costs (allocator growth, the fit's lazily built
+    pieces). Returns the time it took as JSON (ms)."""
+    started = time.perf_counter()
+    names = json.loads(describe(model_dir))["objects"] or ["object 1", "object 2"]
+    predict(model_dir, *synthetic_scene(names))
+    return json.dumps(round(1000 * (time.perf_counter() - started), 1))

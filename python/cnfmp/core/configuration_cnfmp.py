@@ -60,7 +60,7 @@ class CnfmpConfig(MotionConfig):
     #: Whether the linear part of each object's deformation is a similarity (turn and scale,
     #: unbounded and linear in the latent) times a bounded stretch, instead of a bounded map
     #: (turns up to ~50 deg, scale within ~+-50%, saturating): the template may then turn by
-    #: any angle and scale without saturating. The incline model uses it (docs/benchmarks.md).
+    #: any angle and scale without saturating. The incline model uses it (docs/experiments.md).
     full_turns: bool = False
     #: Weight of the Lipschitz penalty (product of the learned per-layer bounds) on the
     #: latent-to-deformation networks.
@@ -92,7 +92,7 @@ class CnfmpConfig(MotionConfig):
     #: training never tied to a motion. (The centre prior then keeps the offset small.) Needs
     #: `motion_shapes_latents` False (check() refuses the pair): shaped by the motion, the
     #: latents memorise each demonstration's position again and the motion stops reading the
-    #: centroid (docs/benchmarks.md: cup validation success 0.075 against 0.95).
+    #: centroid (docs/experiments.md, "Anchored centres": cup validation success 0.075 against 0.95).
     anchored_centres: bool = False
     #: Whether the motion also reads, for each object, the first moment of the image's
     #: darkness inside its coarse mask: the offset from the mask's centroid to its
@@ -100,7 +100,7 @@ class CnfmpConfig(MotionConfig):
     #: learned map into the latent space like the centroid's. Shaded faces and the parts
     #: under an object's top show on one side of it, which tells a pose the template's turn
     #: cannot: a near-square ramp's template turns with its yaw only modulo a quarter turn,
-    #: and this is where the rising edge shows (docs/benchmarks.md: incline validation
+    #: and this is where the rising edge shows (docs/experiments.md: incline validation
     #: success 0.55 -> 0.825). Needs `anchored_centres`.
     shading_moments: bool = False
     #: Slot (0-based, in label order) of the object whose surface the gripper tilts to meet,
@@ -112,7 +112,7 @@ class CnfmpConfig(MotionConfig):
     #: training demonstrations. No latent enters the tilt. Why: with 20 demonstrations, a
     #: tilt read through the gates from every latent memorises the demonstrations instead of
     #: the slope, and fails on ramp yaws few of them show; ten image statistics do not
-    #: (docs/benchmarks.md, "The tilt from the ramp's mask statistics": incline validation
+    #: (docs/experiments.md, "The tilt from the ramp's mask statistics": incline validation
     #: success 0.853 -> 0.97). Needs `anchored_centres` and `shading_moments`.
     tilt_object: int = -1
 

@@ -170,7 +170,7 @@ def _shading_moments(luminance: np.ndarray, rows: np.ndarray, cols: np.ndarray, 
 
 
 #: A pixel belongs to a mask's shaded part when its luminance is under this fraction of the
-#: mask's median luminance (validation scenes: 0.8-0.95 work alike, docs/benchmarks.md).
+#: mask's median luminance (validation scenes: 0.8-0.95 work alike, docs/experiments.md).
 SHADED_BELOW_MEDIAN = 0.9
 
 

@@ -6,8 +6,9 @@ a cheap search over candidates (every training demonstration's weights, the simp
 and random points) picks the best few, which Adam refines in parallel (multi-start). The
 refinement reads the object's appearance from a grid baked for the scene and interpolates its
 low-frequency deformation residual from a coarse grid, rather than running both networks on
-every pixel at every step (2-2.5x faster, fitting as well: docs/benchmarks.md). The final
-reconstruction error of each object, with the networks, is its confidence signal.
+every pixel at every step (refinement 2-2.5x faster, fitting as well: docs/experiments.md,
+"Faster latent fit: baked grids"). The final reconstruction error of each object, with the
+networks, is its confidence signal.
 """
 
 from __future__ import annotations

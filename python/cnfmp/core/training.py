@@ -10,6 +10,7 @@ import dataclasses
 import json
 import os
 import sys
+from collections.abc import Sequence
 
 import torch
 
@@ -27,26 +28,25 @@ from cnfmp.errors import InputError
 AFTER_TRAINING = "after_training"
 
 
-def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps: int | None = None,
+def train(dataset_dir: str, out_dir: str, config_paths: Sequence[str] = (), steps: int | None = None,
           seed: int | None = None, command: str = "", progress: bool = True, model_type: str | None = None) -> str:
     """Trains a model of `model_type` (see :mod:`cnfmp.core.models`; by default the config
-    file's, else cnfmp) on the LeRobot dataset at `dataset_dir` and writes the model
+    files', else cnfmp) on the LeRobot dataset at `dataset_dir` and writes the model
     directory `out_dir` (must not exist; written to a temporary sibling and renamed when
-    complete).
+    complete). The config files layer as :func:`read_configs` says.
 
     Returns JSON ``{"out", "task", "model_type", "demos", "steps", "seconds", "final_losses", "parameters"}``.
     """
     if os.path.exists(out_dir):
         raise InputError(f"{out_dir} already exists; models are never overwritten, choose a new --out")
-    values = {} if config_path is None else read_json_object(config_path)
-    after_training = values.pop(AFTER_TRAINING, {})
+    values, after_training, source = read_configs(config_paths)
     model_type = model_type or values.get("model_type") or models.DEFAULT_MODEL_TYPE
     kind = models.model_type(str(model_type))
-    config = kind.config_class.from_dict(values, source=str(config_path or "config"))
+    config = kind.config_class.from_dict(values, source=source)
     overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
     config = dataclasses.replace(config, **overrides)
     config.check()
-    _shipped_config(config, after_training, str(config_path))  # refuse a bad section before training
+    _shipped_config(config, after_training, source)  # refuse a bad section before training
     demos = core_data.load_demonstrations(dataset_dir)
     if getattr(config, "task_objects", 0):
         demos = core_data.keep_task_objects(demos, config.task_objects)
@@ -56,7 +56,7 @@ def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps:
             f"{config.steps} steps, seed {config.seed}")
     model, summary = kind.train(demos, config, log)
     if after_training:
-        model.config = _shipped_config(model.config, after_training, str(config_path))
+        model.config = _shipped_config(model.config, after_training, source)
 
     def fill(staging: str) -> None:
         models.save_model(model, staging)
@@ -65,6 +65,22 @@ def train(dataset_dir: str, out_dir: str, config_path: str | None = None, steps:
 
     publish_directory(out_dir, fill)
     return json.dumps({"out": out_dir, "task": demos.task, "model_type": kind.name, **summary})
+
+
+def read_configs(paths: Sequence[str]) -> tuple[dict, dict, str]:
+    """The fields of the config files `paths` layered in order (a later file's field wins;
+    their AFTER_TRAINING sections layer field by field the same way), that section apart, and
+    the files' names for messages. No file: every field at its default."""
+    values: dict = {}
+    after_training: dict = {}
+    for path in paths:
+        layer = read_json_object(path)
+        section = layer.pop(AFTER_TRAINING, {})
+        if not isinstance(section, dict):
+            raise InputError(f"{path}: {AFTER_TRAINING} must be a JSON object of inference settings")
+        values.update(layer)
+        after_training.update(section)
+    return values, after_training, " + ".join(map(str, paths)) or "config"
 
 
 def _shipped_config(config, after_training, source: str):

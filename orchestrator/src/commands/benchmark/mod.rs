@@ -57,6 +57,10 @@ pub struct Table1Args {
     /// (the files the shipped models were trained with).
     #[arg(long, default_value = "configs/core")]
     configs: PathBuf,
+    /// Training steps and inference effort of --quick: DIR/<model type>.json, layered over
+    /// the per-task files.
+    #[arg(long, default_value = "configs/quick")]
+    quick_configs: PathBuf,
     /// Redo every job, ignoring finished outputs in the work directory.
     #[arg(long)]
     force: bool,
@@ -80,12 +84,19 @@ fn table1(args: Table1Args) -> Result<(), Failure> {
             args.configs.display()
         )));
     }
+    if args.quick && !args.quick_configs.is_dir() {
+        return Err(Failure::BadInput(format!(
+            "--quick-configs {} is not a directory (run from the repository root, or name the quick settings' directory)",
+            args.quick_configs.display()
+        )));
+    }
     for dir in ["datasets", "models", "evals", "logs", "configs", "reports"] {
         fs::create_dir_all(work.join(dir))
             .map_err(|err| Failure::Environment(format!("cannot create {}: {err}", work.join(dir).display())))?;
     }
     let exe = std::env::current_exe().map_err(|err| Failure::Environment(format!("cannot find the cnfmp binary: {err}")))?;
-    let plan = plan(&Settings { work: &work, configs: &args.configs, quick: args.quick, episodes })?;
+    let settings = Settings { work: &work, configs: &args.configs, quick_configs: &args.quick_configs, quick: args.quick, episodes };
+    let plan = plan(&settings)?;
     eprintln!(
         "table1{}: {} jobs ({} datasets, {} trainings, {} evaluations of {episodes} held-out scenes each), {jobs} at a time; work in {}",
         if args.quick { " --quick" } else { "" },

@@ -5,10 +5,8 @@ use std::collections::BTreeMap;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use serde_json::{Map, Value};
-
 use super::scheduler::{Job, remove_output};
-use super::table::{METHODS, Method, quick_overrides};
+use super::table::{METHODS, Method};
 use crate::failure::Failure;
 use crate::files::write_atomically;
 use crate::seeds::first_heldout_seed;
@@ -19,6 +17,8 @@ pub(super) struct Settings<'a> {
     pub work: &'a Path,
     /// Per-task configuration overrides of the cnfmp models (DIR/<task>.json).
     pub configs: &'a Path,
+    /// The --quick settings per model type (DIR/<model type>.json).
+    pub quick_configs: &'a Path,
     pub quick: bool,
     /// Held-out scenes per evaluation.
     pub episodes: u64,
@@ -43,8 +43,8 @@ pub(super) struct Plan {
 /// Dataset jobs by (task, demonstrations, first seed): their index in the plan.
 type Datasets = BTreeMap<(String, usize, u64), usize>;
 
-/// Plans every job of the table. Writes each training config into the work directory and
-/// removes a model trained with another config, so that the run retrains it.
+/// Plans every job of the table. Records each training's config files in the work directory
+/// and removes a model trained from other ones, so that the run retrains it.
 pub(super) fn plan(settings: &Settings) -> Result<Plan, Failure> {
     let mut jobs: Vec<Job> = Vec::new();
     let mut datasets = Datasets::new();
@@ -102,17 +102,13 @@ fn dataset_job(jobs: &mut Vec<Job>, datasets: &mut Datasets, work: &Path, task: 
 fn training_job(settings: &Settings, row: &Row, dataset: &Path, dataset_job: usize) -> Result<Job, Failure> {
     let (method, task) = (row.method, row.task);
     let model_dir = model_dir(settings, row);
-    let (config, names_seed) = write_config(settings, row, &model_dir)?;
     let mut args = vec![
         "train".into(), "--dataset".into(), path_arg(dataset),
         "--out".into(), path_arg(&model_dir), "--model-type".into(), method.model_type.into(),
     ];
-    // Seed 0 unless the recipe names the seed its shipped model was trained with, so that
-    // "ours" is the shipped model.
-    if !names_seed {
-        args.extend(["--seed".into(), "0".into()]);
-    }
-    if let Some(config) = config {
+    // No --seed: the config's seed (0 unless the recipe names the seed its shipped model was
+    // trained with, so that "ours" is the shipped model).
+    for config in training_configs(settings, row, &model_dir)? {
         args.extend(["--config".into(), path_arg(&config)]);
     }
     Ok(Job {
@@ -141,53 +137,39 @@ fn evaluation_job(settings: &Settings, row: &Row, training_job: usize) -> Job {
     }
 }
 
-/// Writes the training config of the row's method on its task (the task's override file for cnfmp
-/// types, then the --quick settings) and returns its path (None when there is nothing to set)
-/// and whether it names the training seed.
-/// A model already in `model_dir` that was trained with another config is removed, with its
-/// training report, so that the run retrains it (and, by `run_jobs`, evaluates it again).
-fn write_config(settings: &Settings, row: &Row, model_dir: &Path) -> Result<(Option<PathBuf>, bool), Failure> {
+/// The config files the row's training layers (`cnfmp train` merges them; a later file
+/// wins): the task's recipe for the cnfmp types, then with --quick the model type's quick
+/// settings. Their names and contents are recorded in the work directory; a model already in
+/// `model_dir` that was trained from other contents is removed, with its training report,
+/// so that the run retrains it (and, by `run_jobs`, evaluates it again).
+fn training_configs(settings: &Settings, row: &Row, model_dir: &Path) -> Result<Vec<PathBuf>, Failure> {
     let (method, task) = (row.method, row.task);
-    let mut config = Map::new();
-    let task_file = settings.configs.join(format!("{task}.json"));
-    if method.model_type.starts_with("cnfmp") && task_file.is_file() {
-        let text = fs::read_to_string(&task_file)
-            .map_err(|err| Failure::BadInput(format!("cannot read {}: {err}", task_file.display())))?;
-        match serde_json::from_str::<Value>(&text) {
-            Ok(Value::Object(fields)) => config.extend(fields),
-            _ => return Err(Failure::BadInput(format!("{} is not a JSON object of config fields", task_file.display()))),
-        }
+    let recipe = settings.configs.join(format!("{task}.json"));
+    let quick = settings.quick_configs.join(format!("{}.json", method.model_type));
+    if settings.quick && !quick.is_file() {
+        return Err(Failure::BadInput(format!("--quick needs {}, the quick settings of {}", quick.display(), method.model_type)));
     }
-    if settings.quick {
-        let quick = quick_overrides(method.model_type);
-        // The shipped inference settings (set after training) must not undo --quick's effort.
-        if let Some(Value::Object(after)) = config.get_mut("after_training") {
-            for (name, value) in &quick {
-                if after.contains_key(name) {
-                    after.insert(name.clone(), value.clone());
-                }
-            }
+    let configs: Vec<PathBuf> = [(method.model_type.starts_with("cnfmp") && recipe.is_file(), recipe), (settings.quick, quick)]
+        .into_iter()
+        .filter_map(|(used, path)| used.then_some(path))
+        .collect();
+    let mut contents = String::new();
+    for config in &configs {
+        let text = fs::read_to_string(config)
+            .map_err(|err| Failure::BadInput(format!("cannot read {}: {err}", config.display())))?;
+        // Only the shape is checked here; `cnfmp train` checks the fields.
+        if !serde_json::from_str::<serde_json::Value>(&text).is_ok_and(|value| value.is_object()) {
+            return Err(Failure::BadInput(format!("{} is not a JSON object of config fields", config.display())));
         }
-        config.extend(quick);
+        // Names and contents, not paths: the same files copied elsewhere are the same config.
+        contents += &format!("{}\n{text}\n", config.file_name().unwrap_or_default().to_string_lossy());
     }
-    let names_seed = config.contains_key("seed");
-    let path = settings.work.join("configs").join(format!("{}-{task}.json", method.key));
-    let text = (!config.is_empty()).then(|| serde_json::to_string_pretty(&Value::Object(config)).expect("config serialises"));
-    let recorded = fs::read_to_string(&path).ok();
-    if recorded != text && model_dir.exists() {
-        // A model trained with another config must not be reused.
+    let record = settings.work.join("configs").join(format!("{}-{task}.txt", method.key));
+    if fs::read_to_string(&record).ok().as_deref() != Some(contents.as_str()) && model_dir.exists() {
         eprintln!("{}/{task}: its training config changed; it will be retrained and evaluated again", method.key);
         remove_output(model_dir)?;
         remove_output(&row.training)?;
     }
-    match text {
-        Some(text) => {
-            write_atomically(&path, text.as_bytes())?;
-            Ok((Some(path), names_seed))
-        }
-        None => {
-            remove_output(&path)?;
-            Ok((None, names_seed))
-        }
-    }
+    write_atomically(&record, contents.as_bytes())?;
+    Ok(configs)
 }

@@ -1,7 +1,5 @@
 //! The paper's Table I as a benchmark: its tasks and training-set sizes, its method rows and
-//! published figures, and the training effort of `--quick`.
-
-use serde_json::{Map, Value};
+//! published figures.
 
 use crate::seeds::SEEDS;
 
@@ -70,14 +68,3 @@ pub(super) const PAPER: [[Option<(f64, f64)>; 4]; 5] = [
     [Some((0.66, 1.00)), Some((0.85, 1.00)), Some((1.06, 0.81)), Some((1.39, 0.79))],
     [Some((0.48, 1.00)), Some((0.73, 1.00)), Some((0.60, 1.00)), Some((0.66, 0.97))],
 ];
-
-/// Training steps and inference effort of --quick, per model type (merged into the configs).
-pub(super) fn quick_overrides(model_type: &str) -> Map<String, Value> {
-    let overrides = match model_type {
-        "cnfmp" | "cnfmp-nogate" => serde_json::json!({"steps": 40, "motion_refit_steps": 20, "search_candidates": 16,
-                                                        "search_starts": 2, "refine_steps": 5}),
-        "nfmp" => serde_json::json!({"steps": 40, "inference_steps": 10}),
-        _ => serde_json::json!({"steps": 40}),
-    };
-    overrides.as_object().cloned().unwrap_or_default()
-}
