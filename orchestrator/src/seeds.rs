@@ -10,7 +10,7 @@ use serde::Deserialize;
 use crate::failure::Failure;
 
 /// The seed ranges, `[start, stop)` each.
-#[derive(Debug, Deserialize)]
+#[derive(Debug)]
 pub struct SeedRanges {
     /// Training scenes and demonstrations (datasets number from its start).
     pub training: Range<u64>,
@@ -23,7 +23,7 @@ pub struct SeedRanges {
 }
 
 /// The training scenes of one task laid out as a parameter grid (one per cell).
-#[derive(Debug, Deserialize)]
+#[derive(Debug)]
 pub struct NfmpGrid {
     pub task: String,
     pub seeds: Range<u64>,
