@@ -555,13 +555,14 @@ fn check_image(image: &[u8], max_side: u32) -> Result<(u32, u32), ApiError> {
 /// Liveness and load: models served, the segmenter in use, the queue.
 #[utoipa::path(get, path = "/v1/health", responses((status = 200, description = "The server is up.", body = Health)))]
 async fn health(State(state): State<Shared>) -> Json<Health> {
+    let queue = state.pipeline.gauges();
     Json(Health {
         status: "ok".into(),
         version: env!("CARGO_PKG_VERSION").into(),
         models: state.catalog.models().count(),
         segmenter: state.pipeline.segmenter().to_owned(),
-        queue_depth: state.pipeline.gauges().depth,
-        queue_capacity: state.pipeline.gauges().capacity,
+        queue_depth: queue.depth,
+        queue_capacity: queue.capacity,
         uptime_s: state.started.elapsed().as_secs_f64(),
     })
 }

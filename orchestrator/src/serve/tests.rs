@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use axum::Router;
 use axum::body::Body;
-use axum::http::{Method, Request, StatusCode};
+use axum::http::{HeaderValue, Method, Request, StatusCode};
 use serde_json::{Value, json};
 use tokio::sync::oneshot;
 use tower::ServiceExt;
@@ -241,13 +241,13 @@ async fn a_full_queue_gets_503_with_retry_after() {
 #[tokio::test]
 async fn an_internal_error_tells_the_client_only_its_request_id() {
     let (app, _) = app(Behaviour::FailInside);
-    let (content_type, body) = form(Some(&png(32, 24)), &[("prompt", "put the red block on the tray")]);
-    let request = Request::post("/v1/trajectories")
-        .header("content-type", content_type)
-        .header("x-request-id", "robot-7.42")
-        .body(Body::from(body))
-        .unwrap();
-    let answer = send(&app, request).await;
+    let with_id = |id: &str| {
+        let (content_type, body) = form(Some(&png(32, 24)), &[("prompt", "put the red block on the tray")]);
+        let mut request = post(&content_type, body);
+        request.headers_mut().insert("x-request-id", HeaderValue::from_str(id).unwrap());
+        request
+    };
+    let answer = send(&app, with_id("robot-7.42")).await;
     assert_eq!(answer.status, StatusCode::INTERNAL_SERVER_ERROR);
     assert_eq!(answer.body["error"]["code"], "internal");
     let message = answer.body["error"]["message"].as_str().unwrap();
@@ -256,13 +256,7 @@ async fn an_internal_error_tells_the_client_only_its_request_id() {
     assert_eq!(answer.request_id.as_deref(), Some("robot-7.42"));
 
     // A request id that is not a sane token is replaced by the server's own.
-    let (content_type, body) = form(Some(&png(32, 24)), &[("prompt", "put the red block on the tray")]);
-    let request = Request::post("/v1/trajectories")
-        .header("content-type", content_type)
-        .header("x-request-id", "a b\tc")
-        .body(Body::from(body))
-        .unwrap();
-    let answer = send(&app, request).await;
+    let answer = send(&app, with_id("a b\tc")).await;
     let id = answer.request_id.expect("an id");
     assert_ne!(id, "a b\tc");
     assert!(answer.body["error"]["message"].as_str().unwrap().contains(&id));

@@ -40,10 +40,10 @@ impl Method {
 
     /// How many demonstrations of `task` the row trains on, and the first training seed.
     pub(super) fn demonstrations(&self, task: &str, quick: bool) -> (usize, u64) {
-        let sizes = if quick { QUICK_SIZES } else { TASKS.iter().position(|t| *t == task).map_or(QUICK_SIZES, |t| SIZES[t]) };
+        let sizes = || if quick { QUICK_SIZES } else { SIZES[TASKS.iter().position(|t| *t == task).expect("a Table-I task")] };
         match self.regime {
-            Regime::Low => (sizes.0, SEEDS.training.start),
-            Regime::High => (sizes.1, SEEDS.training.start),
+            Regime::Low => (sizes().0, SEEDS.training.start),
+            Regime::High => (sizes().1, SEEDS.training.start),
             Regime::Grid => {
                 let grid = &SEEDS.nfmp_grid.seeds;
                 ((grid.end - grid.start) as usize, grid.start)
