@@ -401,6 +401,40 @@ def test_anchored_centres_with_latents_shaped_by_the_motion_are_refused():
         CnfmpConfig(**{**TINY, "anchored_centres": True, "motion_shapes_latents": True}).check()
 
 
+def test_scene_inputs_hold_each_field_at_its_shape_and_the_observations_in_their_named_order():
+    image = np.random.default_rng(0).integers(0, 255, (40, 48, 3), dtype=np.uint8)
+    labels = np.zeros((40, 48), np.uint8)
+    labels[4:12, 6:30], labels[20:36, 30:44] = 1, 2  # slot 3 absent
+    inputs = core_data.scene_inputs(image, labels, 3, 16, 1)
+    assert isinstance(inputs, core_data.SceneInputs)
+    expected = {"rgb": ((16, 16, 3), np.float32), "masks": ((3, 16, 16), bool), "dilated": ((3, 16, 16), bool),
+                "colour": ((3, 3), np.float32), "observations": ((3, 10), np.float32), "present": ((3,), bool)}
+    for name, (shape, dtype) in expected.items():
+        value = getattr(inputs, name)
+        assert value.shape == shape and value.dtype == dtype, name
+    assert inputs.present.tolist() == [True, True, False]
+    assert len(core_data.OBSERVATION_NAMES) == 10
+    for k in range(2):
+        np.testing.assert_array_equal(inputs.observations[k],
+                                      np.asarray(core_data.observe_mask(image, labels == k + 1), np.float32))
+    np.testing.assert_array_equal(inputs.observations[2], np.zeros(10))
+    column = core_data.OBSERVATION_NAMES.index
+    # Slot 1 spans columns 6..29 and rows 4..11 of 48 x 40: its centroid's pixel centre is
+    # at (17.5 + 0.5, 7.5 + 0.5) px.
+    assert inputs.observations[0, column("centroid_x")] == pytest.approx(18 / 48 * 2 - 1, abs=1e-6)
+    assert inputs.observations[0, column("centroid_y")] == pytest.approx(8 / 40 * 2 - 1, abs=1e-6)
+    assert inputs.observations[0, column("elongation_cos")] > 0.5  # wider than tall
+    assert inputs.observations[0, column("luminance")] == pytest.approx(
+        image[4:12, 6:30].astype(float).mean() / 255, abs=1e-6)
+    for name, columns in (("centre", slice(0, 2)), ("shading", slice(2, 5)), ("tilt_cues", slice(5, 10))):
+        part = getattr(inputs, name)
+        np.testing.assert_array_equal(part, inputs.observations[:, columns])
+        assert part.flags.c_contiguous and part.dtype == np.float32, name
+    assert [core_data.OBSERVATION_NAMES[i] for i in range(2, 5)] == ["dark_dx", "dark_dy", "luminance"]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        inputs.present = np.zeros(3, bool)
+
+
 def test_shading_moments_point_from_the_centroid_to_the_darker_side():
     image = np.full((40, 40, 3), 200, np.uint8)
     labels = np.zeros((40, 40), np.uint8)
@@ -408,7 +442,7 @@ def test_shading_moments_point_from_the_centroid_to_the_darker_side():
     labels[0:8, 0:8] = 2  # a square whose right-hand columns are in shadow
     image[0:8, 5:8] = 60
     inputs = core_data.scene_inputs(image, labels, 3, 16, 1)
-    shading = inputs["shading"]
+    shading = inputs.shading
     assert shading.shape == (3, 3)
     np.testing.assert_allclose(shading[0], [0.0, 0.0, 200 / 255], atol=1e-6)
     dx, dy, luminance = shading[1]
@@ -445,7 +479,7 @@ def test_tilt_cues_measure_elongation_size_and_where_the_shaded_part_lies():
     labels[10:14, 4:36] = 1  # a wide bar, uniform: elongated along x, no shaded part
     labels[20:36, 20:36] = 2  # a square whose bottom rows are in shadow
     image[32:36, 20:36] = 90
-    cues = core_data.scene_inputs(image, labels, 3, 16, 1)["tilt_cues"]
+    cues = core_data.scene_inputs(image, labels, 3, 16, 1).tilt_cues
     assert cues.shape == (3, 5)
     elongation_x, elongation_y, size, shaded_dx, shaded_dy = cues[0]
     assert elongation_x > 0.9 and abs(elongation_y) < 1e-6 and shaded_dx == shaded_dy == 0.0

@@ -108,7 +108,7 @@ class CnfmpConfig(MotionConfig):
     #: rotation (the tilt of the finger axis; needs `rotation_chart` "swing_twist") come from
     #: a movement primitive of their own that reads only that object's mask statistics: its
     #: centroid, shading moments, elongation, size and the offset of its shaded part
-    #: (:func:`cnfmp.core.data.scene_inputs`, "tilt_cues"), each standardised over the
+    #: (:class:`cnfmp.core.data.SceneInputs`, "observations"), each standardised over the
     #: training demonstrations. No latent enters the tilt. Why: with 20 demonstrations, a
     #: tilt read through the gates from every latent memorises the demonstrations instead of
     #: the slope, and fails on ramp yaws few of them show; ten image statistics do not

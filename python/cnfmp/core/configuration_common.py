@@ -24,6 +24,13 @@ ROTATION_CHARTS = ("tangent", "swing_twist")
 
 @dataclass
 class MotionConfig(JsonConfig):
+    # ---- file format ----
+    #: Version of the config format, written into every model's config.json: raised when a
+    #: field changes its name or meaning, with an :meth:`~cnfmp.configuration.JsonConfig.upgrade`
+    #: step from the version before or none (then older models are refused, to be retrained).
+    #: A config.json without it was written before versions existed: version 1.
+    config_version: int = 1
+
     # ---- what the demonstrations say about the motion (from data) ----
     #: Task the demonstrations came from (informative; the models themselves are task-agnostic).
     task: str = ""

@@ -2,8 +2,9 @@
 
 A demonstration is what the method trains on (paper §II): the scene image and coarse object
 masks of the episode's first frame, and the whole commanded end-effector trajectory. Also
-the per-scene inputs of inference (image + label map -> tensors at field resolution), shared
-by training and prediction so both see identical preprocessing.
+the per-scene inputs of the models (image + label map -> :class:`SceneInputs`: arrays at
+field resolution and each object's mask statistics), shared by training and prediction so
+both see identical preprocessing.
 """
 
 from __future__ import annotations
@@ -101,21 +102,93 @@ def keep_task_objects(demos: Demonstrations, count: int) -> Demonstrations:
                                objects=[names[:count] for names in demos.objects])
 
 
-def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolution: int, dilation: int) -> dict:
-    """One scene's image and coarse masks prepared for the fields.
+#: What :attr:`SceneInputs.observations` holds for each object, in its column order, all in
+#: image coordinates ([-1, 1] across the image, x right, y down) unless said otherwise:
+#: the mask's centroid (2); its shading moments (3, :func:`_shading_moments`): the offset from
+#: the centroid to the darkness-weighted centroid and the mean luminance in [0, 1]; and its
+#: tilt cues (5, :func:`_tilt_cues`): the elongation (long axis at twice its angle, scaled by
+#: how elongated the mask is, unitless), the size (RMS distance of its pixels from the
+#: centroid) and the offset from the centroid to the centroid of its shaded part.
+OBSERVATION_NAMES = ("centroid_x", "centroid_y", "dark_dx", "dark_dy", "luminance", "elongation_cos",
+                     "elongation_sin", "size", "shaded_dx", "shaded_dy")
+
+
+@dataclass(frozen=True)
+class SceneInputs:
+    """One scene's image and coarse masks prepared for a model: what training
+    (:class:`cnfmp.core.training_cnfmp.TrainingSet`) and inference
+    (:meth:`cnfmp.core.inference.Predictor.infer_scene`) read, made by :func:`scene_inputs`
+    alone so that both see identical preprocessing. R is the field resolution, N the
+    model's object slots (slot k holds label k + 1).
+
+    Attributes:
+        rgb: (R, R, 3) float32 image in [0, 1], area-resampled to the field resolution.
+        masks: (N, R, R) bool coarse masks at field resolution (a pixel at least 1/4 covered).
+        dilated: (N, R, R) bool the masks dilated by the config's `mask_dilation` (px).
+        colour: (N, 3) float32 median RGB colour in [0, 1] of each mask (0 when absent).
+        observations: (N, len(OBSERVATION_NAMES)) float32 each object's mask statistics, at
+            full image resolution, in the order of OBSERVATION_NAMES (:func:`observe_mask`;
+            0 when absent): what the model reads of an object besides its latent (the
+            centroids with the config's `anchored_centres`, the shading moments with
+            `shading_moments`, all ten for the tilt object with `tilt_object`).
+        present: (N,) bool whether the slot's mask has any pixel at field resolution.
+    """
+
+    rgb: np.ndarray
+    masks: np.ndarray
+    dilated: np.ndarray
+    colour: np.ndarray
+    observations: np.ndarray
+    present: np.ndarray
+
+    @property
+    def centre(self) -> np.ndarray:
+        """(N, 2) float32 mask centroids in image coordinates (contiguous copy of
+        ``observations[:, :2]``)."""
+        return np.ascontiguousarray(self.observations[:, :2])
+
+    @property
+    def shading(self) -> np.ndarray:
+        """(N, 3) float32 shading moments: darkness-weighted offset (dx, dy) in image
+        coordinates and mean luminance in [0, 1] (contiguous copy of ``observations[:, 2:5]``)."""
+        return np.ascontiguousarray(self.observations[:, 2:5])
+
+    @property
+    def tilt_cues(self) -> np.ndarray:
+        """(N, 5) float32 tilt cues: elongation (2), size, shaded offset (2), image coordinates
+        (contiguous copy of ``observations[:, 5:10]``)."""
+        return np.ascontiguousarray(self.observations[:, 5:10])
+
+
+def observe_mask(image: np.ndarray, mask: np.ndarray) -> list[float]:
+    """The statistics of one object's mask that the motion may read: len(OBSERVATION_NAMES)
+    floats in that order (centroid, shading moments, tilt cues; image coordinates in [-1, 1]
+    across the image, luminance in [0, 1]), computed in float64; all 0 for an empty mask.
+
+    Args:
+        image: (H, W, 3) uint8 camera image.
+        mask: (H, W) bool full-resolution mask of the object.
+    """
+    if not mask.any():
+        return [0.0] * len(OBSERVATION_NAMES)
+    height, width = mask.shape
+    rows, cols = np.nonzero(mask)
+    centre = [(cols.mean() + 0.5) / width * 2 - 1, (rows.mean() + 0.5) / height * 2 - 1]
+    luminance = image[rows, cols].astype(np.float64).mean(axis=1)  # 0..255
+    return [*centre, *_shading_moments(luminance, rows, cols, height, width),
+            *_tilt_cues(luminance, rows, cols, height, width)]
+
+
+def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolution: int,
+                 dilation: int) -> SceneInputs:
+    """One scene's image and coarse masks prepared for the fields and the motion.
 
     Args:
         image: (H, W, 3) uint8 camera image; labels: (H, W) uint8 label map (0 background,
-            k the k-th object); num_objects: the model's object slots.
+            k the k-th object); num_objects: the model's object slots N.
         resolution: field resolution R (px); dilation: mask dilation at that resolution (px).
 
-    Returns ``{"rgb": (R, R, 3) float32 in [0, 1], "masks": (N, R, R) bool coarse masks,
-    "dilated": (N, R, R) bool, "colour": (N, 3) float32 median colour of each mask,
-    "centre": (N, 2) float32 centroid of each mask in image coordinates ([-1, 1], x right,
-    y down; 0 when absent), "shading": (N, 3) float32 the offset from that centroid to the
-    mask's darkness-weighted centroid (image coordinates) and the mask's mean luminance in
-    [0, 1] (0 when absent), "tilt_cues": (N, 5) float32 more of each mask's statistics for
-    a tilt readout (:func:`_tilt_cues`; 0 when absent), "present": (N,) bool}``. InputError for mismatched sizes or labels beyond the slots.
+    Returns the :class:`SceneInputs`. InputError for mismatched sizes or labels beyond the slots.
     """
     import cv2
 
@@ -130,29 +203,19 @@ def scene_inputs(image: np.ndarray, labels: np.ndarray, num_objects: int, resolu
         raise InputError(f"the masks use label {highest} but the model has {num_objects} object slot(s)")
     rgb = cv2.resize(image, (resolution, resolution), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
     kernel = np.ones((2 * dilation + 1, 2 * dilation + 1), np.uint8)
-    masks, dilated, colours, centres, shading, cues = [], [], [], [], [], []
-    height, width = labels.shape
+    masks, dilated, colours, observations = [], [], [], []
     for k in range(1, num_objects + 1):
         full = labels == k
-        rows, cols = np.nonzero(full)
-        centres.append([(cols.mean() + 0.5) / width * 2 - 1, (rows.mean() + 0.5) / height * 2 - 1] if full.any() else [0.0, 0.0])
         # Coverage >= 1/4 of a field pixel counts, so thin or far objects keep their mask.
         coverage = cv2.resize(full.astype(np.float32), (resolution, resolution), interpolation=cv2.INTER_AREA)
         small = coverage >= 0.25
         masks.append(small)
         dilated.append(cv2.dilate(small.astype(np.uint8), kernel) > 0)
         colours.append(np.median(image[full], axis=0) / 255.0 if full.any() else np.zeros(3))
-        if full.any():
-            luminance = image[rows, cols].astype(np.float64).mean(axis=1)  # 0..255
-            shading.append(_shading_moments(luminance, rows, cols, height, width))
-            cues.append(_tilt_cues(luminance, rows, cols, height, width))
-        else:
-            shading.append([0.0, 0.0, 0.0])
-            cues.append([0.0] * 5)
-    return {"rgb": rgb, "masks": np.stack(masks), "dilated": np.stack(dilated),
-            "colour": np.asarray(colours, np.float32), "centre": np.asarray(centres, np.float32),
-            "shading": np.asarray(shading, np.float32), "tilt_cues": np.asarray(cues, np.float32),
-            "present": np.array([m.any() for m in masks])}
+        observations.append(observe_mask(image, full))
+    return SceneInputs(rgb=rgb, masks=np.stack(masks), dilated=np.stack(dilated),
+                       colour=np.asarray(colours, np.float32), observations=np.asarray(observations, np.float32),
+                       present=np.array([m.any() for m in masks]))
 
 
 def _shading_moments(luminance: np.ndarray, rows: np.ndarray, cols: np.ndarray, height: int,
@@ -176,7 +239,7 @@ SHADED_BELOW_MEDIAN = 0.9
 
 def _tilt_cues(luminance: np.ndarray, rows: np.ndarray, cols: np.ndarray, height: int,
                width: int) -> list[float]:
-    """[elongation_x, elongation_y, size, shaded_dx, shaded_dy] of one non-empty mask, given
+    """[elongation_cos, elongation_sin, size, shaded_dx, shaded_dy] of one non-empty mask, given
     as its pixels' `luminance`, `rows` and `cols` in a `height` x `width` image, in image
     coordinates ([-1, 1] across the image).
 

@@ -138,9 +138,11 @@ class Predictor:
         return BakedAppearance(field, colour[0], seen.min(dim=0).values - BAKE_MARGIN,
                                seen.max(dim=0).values + BAKE_MARGIN, spacing)
 
-    def infer_scene(self, inputs: dict, seed: int = 0, exact: bool = False) -> tuple[torch.Tensor, list[float | None]]:
-        """Simplex weights (N, K) of every object of a scene (:func:`cnfmp.core.data.scene_inputs`)
-        and each present object's reconstruction MSE (None for an absent slot).
+    def infer_scene(self, inputs: core_data.SceneInputs, seed: int = 0,
+                    exact: bool = False) -> tuple[torch.Tensor, list[float | None]]:
+        """Simplex weights (N, K) of every object of a scene (its :class:`cnfmp.core.data.SceneInputs`,
+        from :func:`cnfmp.core.data.scene_inputs`) and each present object's reconstruction
+        MSE (None for an absent slot).
 
         A cheap search per object, then Adam refines the object's best starts (multi-start)
         with its appearance baked for the scene (config `texels_per_pixel`) and its
@@ -148,16 +150,16 @@ class Predictor:
         `exact` evaluates the networks at every step instead. The MSE and the choice among
         the refined starts always use the networks."""
         c = self.config
-        rgb = torch.from_numpy(inputs["rgb"].reshape(-1, 3))
-        colour, centres = torch.from_numpy(inputs["colour"]), torch.from_numpy(inputs["centre"])
+        rgb = torch.from_numpy(inputs.rgb.reshape(-1, 3))
+        colour, centres = torch.from_numpy(inputs.colour), torch.from_numpy(inputs.centre)
         rng = np.random.default_rng(seed)
         weights = torch.full((c.num_objects, c.num_endpoints), 1.0 / c.num_endpoints)
         mse: list[float | None] = [None] * c.num_objects
-        slots = [slot for slot in range(c.num_objects) if inputs["present"][slot]]
+        slots = [slot for slot in range(c.num_objects) if inputs.present[slot]]
         if not slots:
             return weights, mse
         # Random draws in slot order (reproducible whatever runs in parallel below).
-        draws = {slot: self._draw(np.flatnonzero(inputs["dilated"][slot].reshape(-1)), rng) for slot in slots}
+        draws = {slot: self._draw(np.flatnonzero(inputs.dilated[slot].reshape(-1)), rng) for slot in slots}
 
         def fit(slot: int) -> tuple[torch.Tensor, float]:
             start, fitting = self._search(slot, *draws[slot], rgb, colour[slot], centres[slot])
@@ -211,25 +213,25 @@ class Predictor:
         c = self.config
         inputs = core_data.scene_inputs(image, labels, c.num_objects, c.field_resolution, c.mask_dilation)
         for slot in range(c.num_objects):
-            if not inputs["present"][slot] and not c.slot_can_be_absent[slot]:
+            if not inputs.present[slot] and not c.slot_can_be_absent[slot]:
                 raise InputError(f"the masks have no pixels of object {slot + 1} ({c.object_names[slot]}), "
                                  "which every training scene of this model had")
-        rgb = torch.from_numpy(inputs["rgb"].reshape(-1, 3))
-        colour = torch.from_numpy(inputs["colour"])
-        present = torch.from_numpy(inputs["present"])
+        rgb = torch.from_numpy(inputs.rgb.reshape(-1, 3))
+        colour = torch.from_numpy(inputs.colour)
+        present = torch.from_numpy(inputs.present)
         started = time.perf_counter()
         weights, mse = self.infer_scene(inputs, seed)
         inferred = time.perf_counter()
         with torch.no_grad():
             latents = self.model.latents(weights[None], present[None])
-            anchors = torch.from_numpy(inputs["centre"])[None]
-            shading = torch.from_numpy(inputs["shading"])[None]
-            cues = torch.from_numpy(inputs["tilt_cues"])[None]
+            anchors = torch.from_numpy(inputs.centre)[None]
+            shading = torch.from_numpy(inputs.shading)[None]
+            cues = torch.from_numpy(inputs.tilt_cues)[None]
             outputs = self.model.motion(self.times, latents, present[None], anchors, shading, cues)[0].numpy().astype(np.float64)
         trajectory = decode_trajectory(outputs, c)
         decoded = time.perf_counter()
-        fit = self.scene_fit(latents, colour, present, rgb, inputs["masks"], anchors)
-        return {"trajectory": trajectory, "weights": weights.numpy(), "present": inputs["present"],
+        fit = self.scene_fit(latents, colour, present, rgb, inputs.masks, anchors)
+        return {"trajectory": trajectory, "weights": weights.numpy(), "present": inputs.present,
                 "object_mse": mse, "object_psnr_db": [None if m is None else psnr_db(m) for m in mse],
                 **fit,
                 "seconds": {"infer": inferred - started, "decode": decoded - inferred}}

@@ -49,7 +49,8 @@ LINEAR_BOUND = 0.8
 RESIDUAL_BOUND = 0.15
 STRETCH_BOUND = 0.3
 #: Statistics of the tilt object that the tilt readout reads: centroid (2), shading moments
-#: (3) and tilt cues (5) of :func:`cnfmp.core.data.scene_inputs`.
+#: (3) and tilt cues (5): the observations of :class:`cnfmp.core.data.SceneInputs`
+#: (:data:`cnfmp.core.data.OBSERVATION_NAMES`).
 TILT_FEATURES = 10
 
 

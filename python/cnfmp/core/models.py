@@ -1,7 +1,8 @@
 """The model types of the core and their directories.
 
 A model directory holds ``config.json`` (the type's configuration dataclass, whose
-``model_type`` names the type), ``model.safetensors`` and a ``README.md`` card. Every type
+``model_type`` names the type and ``config_version`` its format, see
+:mod:`cnfmp.configuration`), ``model.safetensors`` and a ``README.md`` card. Every type
 is trained by ``cnfmp train --model-type T`` and evaluated by the same ``cnfmp eval``:
 
 - ``cnfmp``: the compositional neural-field movement primitive (paper §II-B).
@@ -92,7 +93,9 @@ def save_model(model, out_dir: str) -> None:
 
 
 def read_config(model_dir: str):
-    """The configuration in `model_dir`/config.json, as its model type's dataclass."""
+    """The configuration in `model_dir`/config.json, as its model type's dataclass at the
+    current config version (see :mod:`cnfmp.configuration`); InputError for a version this
+    cnfmp cannot read."""
     if not os.path.isdir(model_dir):
         raise InputError(f"model directory {model_dir} does not exist")
     path = os.path.join(model_dir, CONFIG_FILE)
@@ -103,7 +106,8 @@ def read_config(model_dir: str):
             name = json.load(f).get("model_type", DEFAULT_MODEL_TYPE)
     except (OSError, ValueError, AttributeError) as err:
         raise InputError(f"{path} is not a readable JSON object: {err}") from err
-    return model_type(str(name)).config_class.from_file(path)
+    # config.json files written before versions existed are version 1.
+    return model_type(str(name)).config_class.from_file(path, unversioned=1)
 
 
 def load_model(model_dir: str):

@@ -43,20 +43,20 @@ class TrainingSet:
     def __init__(self, demos: core_data.Demonstrations, config: CnfmpConfig):
         n, res = config.num_objects, config.field_resolution
         scenes = [core_data.scene_inputs(img, m, n, res, config.mask_dilation) for img, m in zip(demos.images, demos.masks)]
-        self.rgb = torch.from_numpy(np.stack([s["rgb"].reshape(-1, 3) for s in scenes]))  # (B, R*R, 3)
-        self.colour = torch.from_numpy(np.stack([s["colour"] for s in scenes]))  # (B, N, 3)
-        self.present = torch.from_numpy(np.stack([s["present"] for s in scenes]))  # (B, N)
-        self.centre = torch.from_numpy(np.stack([s["centre"] for s in scenes]))  # (B, N, 2)
-        self.shading = torch.from_numpy(np.stack([s["shading"] for s in scenes]))  # (B, N, 3)
-        self.cues = torch.from_numpy(np.stack([s["tilt_cues"] for s in scenes]))  # (B, N, 5)
+        self.rgb = torch.from_numpy(np.stack([s.rgb.reshape(-1, 3) for s in scenes]))  # (B, R*R, 3)
+        self.colour = torch.from_numpy(np.stack([s.colour for s in scenes]))  # (B, N, 3)
+        self.present = torch.from_numpy(np.stack([s.present for s in scenes]))  # (B, N)
+        self.centre = torch.from_numpy(np.stack([s.centre for s in scenes]))  # (B, N, 2)
+        self.shading = torch.from_numpy(np.stack([s.shading for s in scenes]))  # (B, N, 3)
+        self.cues = torch.from_numpy(np.stack([s.tilt_cues for s in scenes]))  # (B, N, 5)
         # Coarse label per field pixel (0 background, k object k), for the weak mask prior.
         labels = np.zeros((len(scenes), res * res), np.int64)
         for b, s in enumerate(scenes):
             for k in range(n):
-                labels[b][s["masks"][k].reshape(-1)] = k + 1
+                labels[b][s.masks[k].reshape(-1)] = k + 1
         self.labels = torch.from_numpy(labels)
         everywhere = np.arange(res * res)
-        self.pools = [[np.flatnonzero(s["dilated"][k].reshape(-1)) if s["present"][k] else everywhere
+        self.pools = [[np.flatnonzero(s.dilated[k].reshape(-1)) if s.present[k] else everywhere
                        for k in range(n)] for s in scenes]
         self.coords = pixel_coords(res)
         self.targets, self.times = demonstration_targets(demos.trajectories, demos.fps, config)  # (B, F, 7), (F,)

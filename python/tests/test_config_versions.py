@@ -1,0 +1,160 @@
+"""Config versions: config.json carries ``config_version``; a file written before versions
+existed loads as version 1, a newer or malformed version is refused, an older one is upgraded
+step by step or refused with a message that says to retrain."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from cnfmp.configuration import JsonConfig
+from cnfmp.core import data as core_data, models, training_cnfmp
+from cnfmp.core.configuration_cnfmp import CnfmpConfig
+from cnfmp.core.configuration_common import MotionConfig
+from cnfmp.errors import InputError
+
+TINY = dict(field_resolution=16, latent_dim=8, num_endpoints=3, field_width=16, field_layers=2,
+            appearance_octaves=2, pixels_per_object=32, uniform_pixels=32, mask_dilation=1, time_samples=16,
+            search_candidates=8, search_starts=2, refine_steps=3, inference_pixels=64, output_fps=10.0,
+            motion_refit_steps=3, steps=5, seed=0)
+
+
+def write_config(path, values: dict) -> str:
+    path.write_text(json.dumps(values))
+    return str(path)
+
+
+def test_every_model_type_writes_the_current_config_version():
+    assert JsonConfig.current_version() is None  # a class without the field has no versions
+    for kind in models.model_types().values():
+        config = kind.config_class()
+        assert kind.config_class.current_version() == 1 and config.config_version == 1
+        assert json.loads(config.to_json())["config_version"] == 1
+
+
+def test_a_config_without_a_version_loads_as_version_1_and_writes_it(tmp_path):
+    path = write_config(tmp_path / "config.json", {"model_type": "cnfmp", "steps": 7})
+    for unversioned in (None, 1):
+        config = CnfmpConfig.from_file(path, unversioned=unversioned)
+        assert config.config_version == 1 and config.steps == 7
+        again = CnfmpConfig.from_dict(json.loads(config.to_json()))
+        assert json.loads(again.to_json())["config_version"] == 1 and again == config
+
+
+def test_newer_and_malformed_versions_are_refused(tmp_path):
+    newer = write_config(tmp_path / "newer.json", {"config_version": 2, "steps": 7})
+    with pytest.raises(InputError, match=r"newer.json: config_version 2 was written by a newer cnfmp.*update cnfmp"):
+        CnfmpConfig.from_file(newer)
+    # A newer file's new fields are not what is wrong with it: the version is named first.
+    with pytest.raises(InputError, match="newer cnfmp"):
+        CnfmpConfig.from_dict({"config_version": 2, "a_field_of_version_2": 1})
+    for bad in (0, -1, "1", 1.0, True, None):
+        with pytest.raises(InputError, match="config_version must be a whole number >= 1"):
+            CnfmpConfig.from_dict({"config_version": bad})
+    with pytest.raises(InputError, match="config_version must be a whole number >= 1, got 0"):
+        CnfmpConfig.from_dict({}, unversioned=0)
+
+
+def test_unknown_fields_and_other_model_types_are_still_refused_by_name(tmp_path):
+    path = write_config(tmp_path / "typo.json", {"config_version": 1, "stepz": 7})
+    with pytest.raises(InputError, match=r"typo.json: unknown field\(s\) stepz; known: .*config_version"):
+        CnfmpConfig.from_file(path)
+    # model_type is named first, even with a version this cnfmp cannot read.
+    with pytest.raises(InputError, match="model_type is 'nfmp', expected 'cnfmp'"):
+        CnfmpConfig.from_dict({"model_type": "nfmp", "config_version": 9, "latent_size": 3})
+
+
+@dataclass
+class RenamingConfig(MotionConfig):
+    """A config at version 3 whose version 1 called `steps` `iterations` and whose version 2
+    had a `legacy` field since dropped."""
+
+    config_version: int = 3
+    model_type: str = "renaming"
+
+    @classmethod
+    def upgrade(cls, values: dict, version: int, source: str) -> dict:
+        cls.steps_taken.append(version)
+        if version == 1:
+            values = {("steps" if k == "iterations" else k): v for k, v in values.items()}
+            return {**values, "legacy": 0}
+        if version == 2:
+            return {k: v for k, v in values.items() if k != "legacy"}
+        return super().upgrade(values, version, source)
+
+
+@dataclass
+class Version2Config(MotionConfig):
+    config_version: int = 2
+    model_type: str = "version-2"
+
+
+def test_older_versions_upgrade_step_by_step_and_the_base_refuses_with_a_retrain_message():
+    RenamingConfig.steps_taken = []
+    config = RenamingConfig.from_dict({"config_version": 1, "iterations": 12})
+    assert RenamingConfig.steps_taken == [1, 2] and config.steps == 12 and config.config_version == 3
+    RenamingConfig.steps_taken = []
+    config = RenamingConfig.from_dict({"iterations": 12}, unversioned=1)
+    assert RenamingConfig.steps_taken == [1, 2] and config.steps == 12
+    RenamingConfig.steps_taken = []
+    assert RenamingConfig.from_dict({"steps": 4}).steps == 4 and RenamingConfig.steps_taken == []
+    # A class that does not override upgrade reads no older version.
+    with pytest.raises(InputError, match=r"src: config_version 1 is a config format this cnfmp cannot read "
+                                         r"\(it reads version 2\); retrain the model with `cnfmp train`"):
+        Version2Config.from_dict({"steps": 4}, source="src", unversioned=1)
+    assert Version2Config.from_dict({"steps": 4}).config_version == 2
+
+
+def tiny_demonstrations() -> core_data.Demonstrations:
+    """Two synthetic demonstrations of two objects (no simulator): enough to train a few steps."""
+    rng = np.random.default_rng(0)
+    images = rng.integers(60, 200, (2, 32, 32, 3), dtype=np.uint8)
+    masks = np.zeros((2, 32, 32), np.uint8)
+    masks[0, 4:12, 4:12], masks[0, 18:28, 16:26] = 1, 2
+    masks[1, 6:14, 14:22], masks[1, 20:30, 4:14] = 1, 2
+    trajectories = []
+    for b in range(2):
+        t = np.linspace(0, 1, 11)[:, None]
+        position = np.array([0.4, 0.0, 0.3]) + t * np.array([0.1 * (b + 1), -0.05, -0.2])
+        quat = np.tile([0.0, 1.0, 0.0, 0.0], (11, 1))
+        trajectories.append(np.concatenate([position, quat, (t > 0.5).astype(float)], axis=1))
+    return core_data.Demonstrations("synthetic", 10.0, images, masks, [["a", "b"]] * 2, trajectories,
+                                    [0, 1], ["move a to b"] * 2)
+
+
+def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without_it(tmp_path, monkeypatch):
+    demos = tiny_demonstrations()
+    model, _ = training_cnfmp.train_model(demos, CnfmpConfig(**TINY))
+    saved = tmp_path / "today"
+    saved.mkdir()
+    models.save_model(model, str(saved))
+    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 1
+    old = tmp_path / "before-versions"
+    shutil.copytree(saved, old)
+    values = json.loads((old / models.CONFIG_FILE).read_text())
+    del values["config_version"]
+    (old / models.CONFIG_FILE).write_text(json.dumps(values, indent=2))
+
+    assert models.read_config(str(old)) == models.read_config(str(saved)) == model.config
+    one, two = (models.load_predictor(str(d)).predict(demos.images[1], demos.masks[1], seed=2) for d in (saved, old))
+    for key in ("position", "orientation", "gripper"):
+        np.testing.assert_array_equal(one["trajectory"][key], two["trajectory"][key])
+    np.testing.assert_array_equal(one["weights"], two["weights"])
+    assert one["object_mse"] == two["object_mse"]
+
+    # Were the current version 2, the directory without the key would be upgraded from
+    # version 1 (not taken as current), and the one with it too.
+    upgraded = []
+    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 2))
+    monkeypatch.setattr(CnfmpConfig, "upgrade",
+                        classmethod(lambda cls, values, version, source: upgraded.append(version) or values))
+    assert models.read_config(str(old)).config_version == 2 and upgraded == [1]
+    assert models.read_config(str(saved)).config_version == 2 and upgraded == [1, 1]
+    monkeypatch.undo()
+    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 2))
+    with pytest.raises(InputError, match=r"config.json: config_version 1 .* retrain the model with `cnfmp train`"):
+        models.read_config(str(old))
