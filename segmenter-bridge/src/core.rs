@@ -28,6 +28,14 @@ pub struct TrainRequest {
     pub seed: Option<u64>,
     /// The command line, recorded in the model card.
     pub command: String,
+    /// The camera feature of the scenes (None: the annotated one, else the only one).
+    pub camera: Option<String>,
+    /// The feature the trajectories come from: `action` or `observation.state`.
+    pub motion_from: String,
+    /// Names of the motion vector's dimensions, overriding the dataset's.
+    pub motion_names: Option<Vec<String>>,
+    /// Align the demonstrations by their gripper events before training.
+    pub align_time: bool,
 }
 
 /// Summary of a finished training run.
@@ -148,7 +156,8 @@ impl Bridge {
         let r = request.clone();
         self.call_json("cnfmp.core.api", "train", move |py| {
             Ok(kwargs!(py, dataset_dir = r.dataset, out_dir = r.out, config_paths = r.configs, steps = r.steps, seed = r.seed,
-                       command = r.command, model_type = r.model_type))
+                       command = r.command, model_type = r.model_type, camera = r.camera,
+                       motion_from = r.motion_from, motion_names = r.motion_names, align_time = r.align_time))
         })
     }
 

@@ -2,7 +2,7 @@
 //! dataset and reading episodes back (`cnfmp.data.lerobot_io`), and reading robomimic-style
 //! HDF5 demos (`cnfmp.data.hdf5`).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use numpy::ndarray::{Array1, Array2, Array4};
 use numpy::{PyReadonlyArray2, PyReadonlyArray4};
@@ -99,7 +99,69 @@ pub struct Hdf5Demo {
     pub prompt: String,
 }
 
+/// What `cnfmp dataset annotate` asks for (`cnfmp.data.annotate.annotate`).
+#[derive(Debug, Clone)]
+pub struct AnnotateRequest {
+    /// LeRobot dataset without masks.
+    pub dataset: PathBuf,
+    /// Annotated copy to create (must not exist).
+    pub out: PathBuf,
+    /// Camera feature to segment; None: the only one.
+    pub camera: Option<String>,
+    /// Objects to find in every episode, in slot order; None: those each task prompt names.
+    pub objects: Option<Vec<String>>,
+    pub backend: String,
+    pub weights: Option<PathBuf>,
+    /// Folder of hand-made label maps `episode_<index>.png`.
+    pub masks_dir: Option<PathBuf>,
+    /// Task name recorded for the models; None: the dataset folder's name.
+    pub task: Option<String>,
+}
+
+/// A phrase the segmenter did not find in an episode's first frame.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct MissingObject {
+    pub phrase: String,
+    /// Best mean probability of a candidate mask (the found threshold is the segmenter's).
+    pub score: f64,
+}
+
+/// An episode left out of an annotated dataset.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct UnannotatedEpisode {
+    pub episode: u64,
+    pub prompt: String,
+    pub missing: Vec<MissingObject>,
+}
+
+/// What [`Bridge::annotate_dataset`] wrote.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct AnnotateReport {
+    pub out: String,
+    pub episodes: u64,
+    pub annotated: u64,
+    /// Episodes whose masks came from --masks-dir.
+    pub hand_made: u64,
+    pub skipped: Vec<UnannotatedEpisode>,
+    pub camera: String,
+    pub task: String,
+    /// Episodes whose segmentation a previous, interrupted run had already done.
+    pub resumed: u64,
+    /// PNG with one thumbnail per episode, masks overlaid.
+    pub contact_sheet: String,
+}
+
 impl Bridge {
+    /// Adds coarse masks to a LeRobot dataset (a copy at `request.out`), with a progress bar
+    /// on stderr. Resumable: an interrupted run's segmentations are reused.
+    pub fn annotate_dataset(&self, request: &AnnotateRequest) -> Result<AnnotateReport, BridgeError> {
+        let r = request.clone();
+        self.call_json("cnfmp.data.annotate", "annotate", move |py| {
+            Ok(kwargs!(py, dataset_dir = r.dataset, out_dir = r.out, camera = r.camera, objects = r.objects,
+                       backend_name = r.backend, weights = r.weights, masks_dir = r.masks_dir, task = r.task))
+        })
+    }
+
     /// Writes the staged episode folders `staging/<name>` (in order) as a LeRobot v3.0 dataset
     /// at `out` (must not exist) at `fps`, with a progress bar on stderr.
     pub fn write_staged(&self, staging: &Path, episodes: Vec<String>, out: &Path, fps: u32) -> Result<StagedWriteReport, BridgeError> {

@@ -40,7 +40,7 @@ mod worker;
 mod tests;
 
 pub use calls::{ArrayRoundTrip, DoctorCheck, DoctorReport, PythonInfo, StartupReport, StartupStage};
-pub use dataset::{DatasetCheck, DatasetEpisodes, DatasetInspection, Hdf5Demo, Hdf5Listing, InspectedEpisode, SkippedEpisode, StagedWriteReport};
+pub use dataset::{AnnotateReport, AnnotateRequest, DatasetCheck, DatasetEpisodes, DatasetInspection, Hdf5Demo, Hdf5Listing, InspectedEpisode, SkippedEpisode, StagedWriteReport};
 pub use core::{DrawChoice, ModelDescription, ModelInfo, ObjectEstimate, Prediction, TrainReport, TrainRequest};
 pub use error::{BridgeError, PythonException, TRACEBACK_FRAMES};
 pub use interpreter::BridgeConfig;

@@ -1,14 +1,16 @@
-//! `cnfmp dataset generate | convert | validate`: LeRobot v3.0 datasets of scripted expert
-//! demonstrations, batch conversion of recorded ones, and validation.
+//! `cnfmp dataset generate | convert | annotate | validate`: LeRobot v3.0 datasets of scripted
+//! expert demonstrations, batch conversion of recorded ones, coarse masks for a lab's own
+//! recordings, and validation.
 
 use std::path::PathBuf;
 
 use clap::Subcommand;
-use segmenter_bridge::Bridge;
+use segmenter_bridge::{AnnotateRequest, Bridge};
 
 use super::print_stdout;
 use crate::convert::{self, ConvertOptions, Source, Target};
 use crate::failure::Failure;
+use crate::segmentation::BackendArgs;
 
 #[derive(Debug, Subcommand)]
 pub enum DatasetCommand {
@@ -56,6 +58,35 @@ pub enum DatasetCommand {
         #[arg(long)]
         strict: bool,
     },
+    /// Add coarse object masks to a LeRobot dataset recorded without them (e.g. by
+    /// lerobot-record): the language segmenter runs on each episode's first frame with the
+    /// episode's task prompt (or --objects) and a copy with annotation.masks / .objects /
+    /// .scene is written; videos are copied as they are. Writes annotation/contact_sheet.png
+    /// inside for review. Resumable; the dataset appears at --out only when complete.
+    Annotate {
+        /// LeRobot v3.0 dataset without masks.
+        #[arg(long)]
+        dataset: PathBuf,
+        /// Output directory; must not exist.
+        #[arg(long)]
+        out: PathBuf,
+        /// Camera feature to segment (default: the dataset's only camera).
+        #[arg(long)]
+        camera: Option<String>,
+        /// Objects to find in every episode, comma-separated, in slot order, e.g. "red cup, paper"
+        /// (default: the objects each episode's task prompt names, the moved one first).
+        #[arg(long, value_delimiter = ',')]
+        objects: Option<Vec<String>>,
+        /// Folder of hand-made label maps episode_<index>.png (8-bit, 0 background, k the
+        /// k-th object), used for the episodes that have one.
+        #[arg(long)]
+        masks_dir: Option<PathBuf>,
+        /// Task name the models of this dataset carry (default: the dataset folder's name).
+        #[arg(long)]
+        task: Option<String>,
+        #[command(flatten)]
+        segmenter: BackendArgs,
+    },
     /// Check a LeRobot dataset: lerobot's own reader, cnfmp's checks of annotations and
     /// trajectories, and lerobot-doctor. Exit 0 when every check passes, 2 otherwise.
     Validate {
@@ -83,6 +114,25 @@ pub fn run(command: DatasetCommand) -> Result<(), Failure> {
                 "converted {} of {} episodes ({} frames at {} fps, {} skipped, {} resumed) into {} in {:.1} s",
                 report.converted, report.episodes, report.frames, report.fps, report.skipped.len(), report.resumed, report.out, report.seconds
             );
+            print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))?;
+        }
+        DatasetCommand::Annotate { dataset, out, camera, objects, masks_dir, task, segmenter } => {
+            if out.exists() {
+                return Err(Failure::BadInput(format!("{} already exists; datasets are never overwritten, choose a new --out", out.display())));
+            }
+            if !dataset.is_dir() {
+                return Err(Failure::BadInput(format!("dataset {} is not a directory", dataset.display())));
+            }
+            let request = AnnotateRequest { dataset, out, camera, objects, backend: segmenter.backend, weights: segmenter.weights, masks_dir, task };
+            let report = Bridge::start_default()?.annotate_dataset(&request)?;
+            eprintln!(
+                "annotated {} of {} episodes ({} hand-made, {} skipped, {} resumed) from camera {} into {}; review {}",
+                report.annotated, report.episodes, report.hand_made, report.skipped.len(), report.resumed, report.camera, report.out, report.contact_sheet
+            );
+            for skipped in &report.skipped {
+                let missing: Vec<String> = skipped.missing.iter().map(|m| format!("{:?} (score {:.2})", m.phrase, m.score)).collect();
+                eprintln!("  episode {} skipped: {} not found in {:?}", skipped.episode, missing.join(", "), skipped.prompt);
+            }
             print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))?;
         }
         DatasetCommand::Validate { dir, json } => {

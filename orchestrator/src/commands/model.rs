@@ -25,7 +25,8 @@ use crate::segmentation::{BackendArgs, run_segmenter};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
-    /// LeRobot v3.0 dataset (from `cnfmp dataset generate` or `cnfmp dataset convert`).
+    /// LeRobot v3.0 dataset with coarse masks (from `cnfmp dataset generate`, `convert` or
+    /// `annotate`; a lerobot recording gets its masks from `cnfmp dataset annotate`).
     #[arg(long)]
     dataset: PathBuf,
     /// Model directory to create: config.json, model.safetensors, README.md (must not exist).
@@ -49,6 +50,22 @@ pub struct TrainArgs {
     // Python checks the name: cnfmp.core.models holds the one registry.
     #[arg(long)]
     model_type: Option<String>,
+    /// Camera feature whose first frames are the scenes, e.g. observation.images.front.
+    /// Default: the camera the masks were annotated on, else the dataset's only camera.
+    #[arg(long)]
+    camera: Option<String>,
+    /// Feature the trajectories come from: `action` (commanded) or `observation.state` (measured).
+    #[arg(long, default_value = "action", value_parser = ["action", "observation.state"])]
+    motion_from: String,
+    /// Names of the motion vector's dimensions, comma-separated, when the dataset's are
+    /// missing or differ: x,y,z plus qw,qx,qy,qz or rx,ry,rz (rotation vector) or
+    /// roll,pitch,yaw (fixed-axis x-y-z, rad), plus gripper; e.g. x,y,z,rx,ry,rz,gripper.
+    #[arg(long, value_delimiter = ',')]
+    motion_names: Option<Vec<String>>,
+    /// Keep the demonstrations' timing as recorded instead of aligning their gripper
+    /// closing and opening events (piecewise-linear time warps to the median event times).
+    #[arg(long)]
+    no_time_alignment: bool,
 }
 
 #[derive(Debug, Args)]
@@ -99,6 +116,10 @@ pub fn train(args: TrainArgs) -> Result<(), Failure> {
         seed: args.seed,
         model_type: args.model_type,
         command,
+        camera: args.camera,
+        motion_from: args.motion_from,
+        motion_names: args.motion_names,
+        align_time: !args.no_time_alignment,
     };
     let report = Bridge::start_default()?.core_train(&request)?;
     print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))

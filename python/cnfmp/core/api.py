@@ -24,12 +24,17 @@ _LOADED: dict[str, tuple[tuple, object]] = {}
 
 
 def train(dataset_dir: str, out_dir: str, config_paths: list[str], steps: int | None, seed: int | None,
-          command: str, model_type: str | None = None) -> str:
-    """See :func:`cnfmp.core.training.train`; progress goes to stderr."""
+          command: str, model_type: str | None = None, camera: str | None = None, motion_from: str = "action",
+          motion_names: list[str] | None = None, align_time: bool = True) -> str:
+    """See :func:`cnfmp.core.training.train` (the recording options: :class:`cnfmp.core.data.RecordingOptions`);
+    progress goes to stderr."""
     from cnfmp.core import training
+    from cnfmp.core.data import RecordingOptions
 
+    recording = RecordingOptions(camera, motion_from, tuple(motion_names) if motion_names else None)
     return training.train(os.fspath(dataset_dir), os.fspath(out_dir), [os.fspath(path) for path in config_paths],
-                          steps, seed, command=command, model_type=model_type)
+                          steps, seed, command=command, model_type=model_type, recording=recording,
+                          align_time=align_time)
 
 
 def predictor(model_dir: str):

@@ -30,9 +30,11 @@ class Demonstrations:
         masks: (B, H, W) uint8 label maps (0 background, k = objects[b][k-1]).
         objects: per demonstration, the object names in label order.
         trajectories: per demonstration, (T_b, 8) float64 ``x y z qw qx qy qz gripper``
-            commanded poses at `fps`, starting with the measured start pose.
+            poses at `fps` (gripper in [0, 1]).
         seeds: scene seeds (-1 where the dataset does not record them).
         prompts: the language instruction of each demonstration.
+        camera: the camera feature the images come from.
+        motion: how the trajectories were read (the recorded layout, for the model card).
     """
 
     task: str
@@ -43,51 +45,90 @@ class Demonstrations:
     trajectories: list[np.ndarray]
     seeds: list[int]
     prompts: list[str]
+    camera: str = ""
+    motion: str = ""
 
     def __len__(self) -> int:
         return len(self.trajectories)
 
 
-def load_demonstrations(dataset_dir: str) -> Demonstrations:
+@dataclass(frozen=True)
+class RecordingOptions:
+    """How to read a dataset a robot recorded (``cnfmp train --camera --motion-from
+    --motion-names``); the defaults read datasets cnfmp wrote as they are.
+
+    Attributes:
+        camera: the camera feature whose first frames are the scenes (None: the annotated
+            one, else the only one).
+        motion_from: the feature the trajectories come from: "action" (the commanded poses)
+            or "observation.state" (the measured ones).
+        motion_names: names of the motion vector's dimensions, overriding the dataset's
+            (see :mod:`cnfmp.data.recorded` for the names understood).
+    """
+
+    camera: str | None = None
+    motion_from: str = "action"
+    motion_names: tuple[str, ...] | None = None
+
+
+def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingOptions()) -> Demonstrations:
     """Reads every episode of the LeRobot dataset at `dataset_dir`.
 
-    The trajectory of an episode is its first measured state followed by the ``action`` of
-    every frame (the commanded pose and gripper of the next frame). Raises InputError when
-    the directory is not a LeRobot dataset with the features the core needs.
+    The scene of an episode is its first frame of the chosen camera (image or video, any
+    size) with its coarse masks (``annotation.masks``, ``annotation.objects``). The
+    trajectory comes from `options.motion_from`, turned into end-effector poses by its layout
+    (:mod:`cnfmp.data.recorded`). Read from ``action`` when ``observation.state`` has the same
+    layout, it is the first measured state followed by every frame's action (the commanded
+    pose of the next frame). Raises InputError when the directory is not a LeRobot dataset
+    with what the core needs.
     """
     # Imported here: the dataset readers pull in the simulator and scipy, which inference
     # (scene_inputs, a cold `cnfmp predict`) never needs.
-    from cnfmp.data.generate import IMAGE_KEY
+    from cnfmp.data import recorded
     from cnfmp.data.lerobot_io import open_dataset
 
     dataset = open_dataset(dataset_dir)
-    needed = {IMAGE_KEY, "observation.state", "action", "annotation.masks", "annotation.objects"}
-    missing = sorted(needed - set(dataset.features))
+    features = dataset.meta.features
+    missing = sorted({options.motion_from, "annotation.masks", "annotation.objects"} - set(features))
     if missing:
-        raise InputError(f"{dataset_dir}: the dataset lacks feature(s) {', '.join(missing)} "
-                         "(datasets written by `cnfmp dataset generate` or `cnfmp dataset convert` have them)")
+        hint = ("; add coarse masks with `cnfmp dataset annotate`" if "annotation.masks" in missing else "")
+        raise InputError(f"{dataset_dir}: the dataset lacks feature(s) {', '.join(missing)}{hint}")
     if dataset.num_episodes == 0:
         raise InputError(f"{dataset_dir}: the dataset has no episodes")
+    first_scene = json.loads(dataset.hf_dataset[0]["annotation.scene"] or "{}") if "annotation.scene" in features else {}
+    camera = recorded.choose_camera(features, options.camera, first_scene.get("camera"))
+    names = options.motion_names or features[options.motion_from].get("names")
+    layout = recorded.motion_layout(options.motion_from, names)
+    state_names = features.get("observation.state", {}).get("names")
+    prepend_state = options.motion_from == "action" and options.motion_names is None and state_names == names
 
-    columns = dataset.hf_dataset.with_format(None).select_columns(["observation.state", "action"])[:]
-    state, action = np.asarray(columns["observation.state"], float), np.asarray(columns["action"], float)
+    columns = [options.motion_from] + (["observation.state"] if prepend_state else [])
+    table = dataset.hf_dataset.with_format(None).select_columns(columns)[:]
+    motion = np.asarray(table[options.motion_from], float)
+    state = np.asarray(table["observation.state"], float) if prepend_state else None
     starts = dataset.meta.episodes["dataset_from_index"]
     ends = dataset.meta.episodes["dataset_to_index"]
-    images, masks, objects, trajectories, seeds, prompts, tasks = [], [], [], [], [], [], set()
+    images, masks, objects, episodes, seeds, prompts, tasks = [], [], [], [], [], [], set()
     for start, end in zip(starts, ends):
         first = dataset[int(start)]
-        images.append((first[IMAGE_KEY].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
+        images.append((first[camera].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
         masks.append(np.asarray(first["annotation.masks"], dtype=np.uint8))
+        if masks[-1].shape != images[-1].shape[:2]:
+            raise InputError(f"{dataset_dir}: episode {len(masks) - 1}'s masks are {masks[-1].shape[1]}x"
+                             f"{masks[-1].shape[0]} but camera {camera} is {images[-1].shape[1]}x{images[-1].shape[0]}")
         objects.append(list(json.loads(first["annotation.objects"])))
         prompts.append(str(first["task"]))
         scene = json.loads(first.get("annotation.scene", "{}") or "{}")
         seeds.append(int(scene.get("seed", -1)))
         tasks.add(scene.get("task", ""))
-        trajectories.append(np.concatenate([state[start:start + 1], action[start:end]]))
+        rows = motion[start:end]
+        episodes.append(np.concatenate([state[start:start + 1], rows]) if prepend_state else rows)
     if len(tasks) > 1:
         raise InputError(f"{dataset_dir}: episodes of several tasks ({', '.join(sorted(tasks))}); train one task per model")
+    trajectories, scale = recorded.to_poses(episodes, layout)
+    motion_text = layout.describe() + ("" if scale is None else f"; gripper {scale[0]:g}..{scale[1]:g} read as 0..1")
     return Demonstrations(tasks.pop(), float(dataset.fps), np.stack(images), np.stack(masks), objects,
-                          trajectories, seeds, prompts)
+                          trajectories, seeds, prompts, camera, motion_text)
 
 
 def task_object_labels(labels: np.ndarray, count: int) -> np.ndarray:

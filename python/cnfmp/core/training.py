@@ -18,6 +18,7 @@ from cnfmp.artifacts import publish_directory
 from cnfmp.configuration import read_json_object
 from cnfmp.core import data as core_data
 from cnfmp.core import models
+from cnfmp.core.alignment import align_demonstrations
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.errors import InputError
 
@@ -29,11 +30,14 @@ AFTER_TRAINING = "after_training"
 
 
 def train(dataset_dir: str, out_dir: str, config_paths: Sequence[str] = (), steps: int | None = None,
-          seed: int | None = None, command: str = "", progress: bool = True, model_type: str | None = None) -> str:
+          seed: int | None = None, command: str = "", progress: bool = True, model_type: str | None = None,
+          recording: core_data.RecordingOptions = core_data.RecordingOptions(), align_time: bool = True) -> str:
     """Trains a model of `model_type` (see :mod:`cnfmp.core.models`; by default the config
     files', else cnfmp) on the LeRobot dataset at `dataset_dir` and writes the model
     directory `out_dir` (must not exist; written to a temporary sibling and renamed when
-    complete). The config files layer as :func:`read_configs` says.
+    complete). The config files layer as :func:`read_configs` says. `recording` says which
+    camera and motion vector to read; with `align_time` the demonstrations are first aligned
+    by their gripper events (:mod:`cnfmp.core.alignment`).
 
     Returns JSON ``{"out", "task", "model_type", "demos", "steps", "seconds", "final_losses", "parameters"}``.
     """
@@ -47,13 +51,18 @@ def train(dataset_dir: str, out_dir: str, config_paths: Sequence[str] = (), step
     config = dataclasses.replace(config, **overrides)
     config.check()
     _shipped_config(config, after_training, source)  # refuse a bad section before training
-    demos = core_data.load_demonstrations(dataset_dir)
+    demos = core_data.load_demonstrations(dataset_dir, recording)
     if getattr(config, "task_objects", 0):
         demos = core_data.keep_task_objects(demos, config.task_objects)
+    timing = "as recorded"
+    if align_time:
+        trajectories, aligned = align_demonstrations(demos.trajectories, demos.fps)
+        demos, timing = dataclasses.replace(demos, trajectories=trajectories), aligned.describe()
     log = (lambda line: print(line, file=sys.stderr, flush=True)) if progress else None
     if log:
         log(f"training {kind.name} on {len(demos)} {demos.task} demonstrations from {dataset_dir}, "
             f"{config.steps} steps, seed {config.seed}")
+        log(f"camera {demos.camera}; motion {demos.motion}; timing: {timing}")
     model, summary = kind.train(demos, config, log)
     if after_training:
         model.config = _shipped_config(model.config, after_training, source)
@@ -61,7 +70,7 @@ def train(dataset_dir: str, out_dir: str, config_paths: Sequence[str] = (), step
     def fill(staging: str) -> None:
         models.save_model(model, staging)
         with open(os.path.join(staging, models.CARD_FILE), "w", encoding="utf-8") as f:
-            f.write(model_card(kind, model.config, summary, dataset_dir, demos, command, after_training))
+            f.write(model_card(kind, model.config, summary, dataset_dir, demos, command, after_training, timing))
 
     publish_directory(out_dir, fill)
     return json.dumps({"out": out_dir, "task": demos.task, "model_type": kind.name, **summary})
@@ -99,7 +108,7 @@ def _shipped_config(config, after_training, source: str):
 
 
 def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, demos: core_data.Demonstrations,
-               command: str, after_training: dict | None = None) -> str:
+               command: str, after_training: dict | None = None, timing: str = "as recorded") -> str:
     seeds = [s for s in demos.seeds if s >= 0]
     seed_text = f"{min(seeds)}..{max(seeds)}" if seeds else "not recorded"
     losses = ", ".join(f"{name.replace('_', ' ')} {value:.5f}" for name, value in summary["final_losses"].items())
@@ -127,6 +136,9 @@ def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, 
 | wall time | {summary['seconds']:.0f} s, {torch.get_num_threads()} torch thread(s) |
 | parameters | {summary['parameters']:,}{extra} |
 {draws}| final losses | {losses} (normalised units) |
+| camera | `{demos.camera}` |
+| motion | {demos.motion} |
+| timing | {timing} |
 | trajectory | {config.duration_s:.1f} s at {config.output_fps:g} Hz |
 {shipped}
 Command:

@@ -118,7 +118,9 @@ def open_dataset(dataset_dir: str):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     try:
-        return LeRobotDataset(f"local/{os.path.basename(os.path.abspath(dataset_dir))}", root=dataset_dir)
+        # pyav: lerobot's default video decoder (torchcodec) needs a system FFmpeg (facts.md).
+        return LeRobotDataset(f"local/{os.path.basename(os.path.abspath(dataset_dir))}", root=dataset_dir,
+                              video_backend="pyav")
     except Exception as err:  # lerobot raises many types for a damaged dataset
         raise InputError(f"{dataset_dir}: lerobot cannot read this dataset: {err}") from err
 

@@ -1,0 +1,173 @@
+"""Reading demonstrations as a robot recorded them: which camera, which motion vector.
+
+A LeRobot dataset made by ``lerobot-record`` names its camera features
+``observation.images.<name>`` (images or videos of any size) and its motion features
+``action`` / ``observation.state`` with per-dimension names. The core learns end-effector
+poses ``x y z qw qx qy qz gripper`` (:data:`cnfmp.data.generate.STATE_NAMES`); this module
+says which camera a dataset's scenes come from and turns a declared or recorded motion layout
+into those poses:
+
+- position: dimensions named ``x``, ``y``, ``z`` (metres);
+- rotation, one of: a quaternion ``qw qx qy qz`` (any order of the four names), a rotation
+  vector ``rx ry rz`` (axis times angle, rad), or Euler angles ``roll pitch yaw`` (rad, the
+  fixed-axis x-y-z convention of ROS / URDF: R = Rz(yaw) Ry(pitch) Rx(roll));
+- gripper: one dimension whose name contains ``gripper``, kept as it is when recorded in
+  [0, 1], else rescaled to [0, 1] over the dataset's range.
+
+Names match after lower-casing and dropping a prefix such as ``ee.`` / ``eef_`` /
+``end_effector.`` and a ``.pos`` suffix. Joint-space vectors (``shoulder_pan.pos`` ...) are
+refused with a clear message: the core's motion is an end-effector pose.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from cnfmp.errors import InputError
+
+#: Where a trajectory may come from.
+MOTION_SOURCES = ("action", "observation.state")
+#: The rotation forms a layout may declare, with the names of their dimensions in order.
+ROTATION_FORMS = {"quaternion": ("qw", "qx", "qy", "qz"), "rotvec": ("rx", "ry", "rz"),
+                  "euler": ("roll", "pitch", "yaw")}
+_PREFIX = re.compile(r"^(ee|eef|end_effector|tcp|tool)[._]")
+_SUFFIX = re.compile(r"[._]pos$")
+
+
+def _plain(name: str) -> str:
+    return _SUFFIX.sub("", _PREFIX.sub("", str(name).strip().lower()))
+
+
+@dataclass(frozen=True)
+class MotionLayout:
+    """Where each part of the end-effector pose sits in a recorded motion vector.
+
+    Attributes:
+        source: the dataset feature read (one of MOTION_SOURCES).
+        names: the vector's dimension names as recorded or declared.
+        position: indices of x, y, z.
+        rotation: "quaternion", "rotvec" or "euler" (see ROTATION_FORMS).
+        rotation_indices: indices of the rotation's dimensions, in ROTATION_FORMS order.
+        gripper: index of the gripper dimension.
+    """
+
+    source: str
+    names: tuple[str, ...]
+    position: tuple[int, int, int]
+    rotation: str
+    rotation_indices: tuple[int, ...]
+    gripper: int
+
+    def describe(self) -> str:
+        """One line for logs and the model card, e.g. ``action: x y z rx ry rz gripper (rotvec)``."""
+        return f"{self.source}: {' '.join(self.names)} ({self.rotation})"
+
+
+def motion_layout(source: str, names) -> MotionLayout:
+    """The layout of the motion vector `source` whose dimensions are called `names` (a list,
+    or lerobot's ``{"motors": [...]}`` form). InputError naming what is missing or unsupported.
+    """
+    if source not in MOTION_SOURCES:
+        raise InputError(f"the motion comes from one of {', '.join(MOTION_SOURCES)}, not {source!r}")
+    if isinstance(names, dict):
+        names = [n for group in names.values() for n in group]
+    if not names:
+        raise InputError(f"{source} does not name its dimensions; declare them, e.g. "
+                         "--motion-names x,y,z,rx,ry,rz,gripper")
+    names = tuple(str(n) for n in names)
+    plain = [_plain(n) for n in names]
+    where = {name: k for k, name in enumerate(plain)}
+    missing = [axis for axis in ("x", "y", "z") if axis not in where]
+    grippers = [k for k, name in enumerate(plain) if "gripper" in name]
+    forms = [form for form, parts in ROTATION_FORMS.items() if all(p in where for p in parts)]
+    if missing or not forms:
+        raise InputError(
+            f"{source} ({', '.join(names)}) is not an end-effector pose the core can learn: "
+            + (f"no {'/'.join(missing)} position dimension(s)" if missing else "no rotation")
+            + ". The core learns x, y, z plus a quaternion (qw qx qy qz), a rotation vector (rx ry rz) "
+              "or Euler angles (roll pitch yaw), plus a gripper; joint-space recordings are not supported yet. "
+              "If the names differ, declare them with --motion-names")
+    if len(grippers) != 1:
+        raise InputError(f"{source} ({', '.join(names)}) needs exactly one dimension named like 'gripper', "
+                         f"found {len(grippers)}")
+    form = forms[0]
+    return MotionLayout(source, names, (where["x"], where["y"], where["z"]), form,
+                        tuple(where[p] for p in ROTATION_FORMS[form]), grippers[0])
+
+
+def _quaternions(values: np.ndarray, layout: MotionLayout) -> np.ndarray:
+    """(T, 4) unit ``wxyz`` quaternions of the rotation part of (T, D) `values`."""
+    from cnfmp import geometry
+
+    part = values[:, list(layout.rotation_indices)].astype(np.float64)
+    if layout.rotation == "quaternion":
+        norms = np.linalg.norm(part, axis=1, keepdims=True)
+        if np.any(norms < 1e-6):
+            raise InputError(f"{layout.source} holds a zero quaternion")
+        quat = part / norms
+    elif layout.rotation == "rotvec":
+        quat = geometry.from_rotation(geometry.Rotation.from_rotvec(part))
+    else:
+        quat = geometry.from_rotation(geometry.Rotation.from_euler("xyz", part))
+    # Keep consecutive quaternions on one hemisphere, so the motion has no sign jumps.
+    for k in range(1, len(quat)):
+        if np.dot(quat[k], quat[k - 1]) < 0:
+            quat[k] = -quat[k]
+    return quat
+
+
+def to_poses(episodes: list[np.ndarray], layout: MotionLayout) -> tuple[list[np.ndarray], tuple[float, float] | None]:
+    """Every episode's (T_b, D) motion vectors as (T_b, 8) ``x y z qw qx qy qz gripper`` poses.
+
+    A gripper recorded in [0, 1] is kept as it is. Any other range (millimetres, 0-100, motor
+    units) is rescaled linearly to [0, 1] over the dataset's range, low to 0 (one that never
+    moves becomes 1). Returns (poses, the recorded (low, high) mapped to (0, 1), or None when
+    kept).
+    """
+    grippers = np.concatenate([e[:, layout.gripper] for e in episodes]).astype(np.float64)
+    low, high = float(grippers.min()), float(grippers.max())
+    scale = None if (low >= 0.0 and high <= 1.0) else (low, high)
+    poses = []
+    for values in episodes:
+        values = np.asarray(values, np.float64)
+        gripper = values[:, layout.gripper]
+        if scale is not None:
+            gripper = (gripper - low) / (high - low) if high > low else np.ones_like(gripper)
+        poses.append(np.concatenate([values[:, list(layout.position)], _quaternions(values, layout),
+                                     gripper[:, None]], axis=1))
+    return poses, scale
+
+
+def camera_keys(features: dict) -> list[str]:
+    """The dataset's camera features (``image`` or ``video``), in the dataset's order."""
+    return [key for key, spec in features.items() if spec.get("dtype") in ("image", "video")]
+
+
+def choose_camera(features: dict, requested: str | None, annotated: str | None) -> str:
+    """The camera whose first frames are the demonstrations' scenes.
+
+    Args:
+        features: the dataset's feature specs; requested: ``--camera`` (None: not given);
+        annotated: the camera the masks were made on, when the dataset records it.
+
+    The masks belong to one camera's pixels, so a request for another is refused. Without
+    either, the only camera; several: InputError listing them.
+    """
+    cameras = camera_keys(features)
+    if not cameras:
+        raise InputError("the dataset has no camera (image or video) feature")
+    if requested is not None and requested not in cameras:
+        raise InputError(f"the dataset has no camera {requested!r}; its cameras: {', '.join(cameras)}")
+    if annotated is not None:
+        if requested is not None and requested != annotated:
+            raise InputError(f"the dataset's masks were made on camera {annotated!r}, not {requested!r}; "
+                             f"annotate {requested!r} into a new dataset with `cnfmp dataset annotate --camera {requested}`")
+        return annotated
+    if requested is not None:
+        return requested
+    if len(cameras) > 1:
+        raise InputError(f"the dataset has {len(cameras)} cameras ({', '.join(cameras)}); choose one with --camera")
+    return cameras[0]

@@ -1,0 +1,206 @@
+"""Demonstrations as a lab records them: a LeRobot dataset written the way `lerobot-record`
+writes one (video camera streams at 320x240, two cameras, a rotation-vector end-effector
+pose with a gripper in millimetres, a task string, no masks, episodes demonstrated at
+different speeds), annotated by the language segmenter, aligned by gripper events and trained."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from cnfmp import geometry
+from cnfmp.core import alignment, data as core_data, training
+from cnfmp.data import annotate, generate, recorded
+from cnfmp.errors import InputError
+
+WIDTH, HEIGHT = 320, 240
+MOTION_NAMES = ["ee.x", "ee.y", "ee.z", "ee.rx", "ee.ry", "ee.rz", "gripper.pos"]
+GRIPPER_MM = 85.0
+#: Per episode, how much slower than the expert the operator moved (time stretch factor).
+SPEEDS = [1.0, 1.5, 0.8, 1.25]
+
+
+def _camera_frame(image: np.ndarray) -> np.ndarray:
+    """A 128x128 render as a 320x240 camera frame: scaled to 240x240, grey bars at the sides."""
+    import cv2
+
+    frame = np.full((HEIGHT, WIDTH, 3), 128, np.uint8)
+    left = (WIDTH - HEIGHT) // 2
+    frame[:, left:left + HEIGHT] = cv2.resize(image, (HEIGHT, HEIGHT), interpolation=cv2.INTER_LINEAR)
+    return frame
+
+
+def _stretch(values: np.ndarray, factor: float) -> np.ndarray:
+    """(T, D) values resampled to round(T * factor) frames (a slower or faster demonstration)."""
+    frames = max(2, int(round(len(values) * factor)))
+    source = np.linspace(0, len(values) - 1, frames)
+    return np.stack([np.interp(source, np.arange(len(values)), column) for column in values.T], axis=1)
+
+
+def _motion(state: np.ndarray) -> np.ndarray:
+    """(T, 8) ``x y z qw qx qy qz gripper`` -> (T, 7) ``x y z rx ry rz gripper_mm``."""
+    rotvec = geometry.to_rotation(state[:, 3:7]).as_rotvec()
+    return np.concatenate([state[:, :3], rotvec, state[:, 7:8] * GRIPPER_MM], axis=1).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """A lerobot-record-like dataset of language_pick_place demonstrations; returns (dir, episodes)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    root = tmp_path_factory.mktemp("recorded") / "my_robot_pick"
+    spec = {"dtype": "video", "shape": (HEIGHT, WIDTH, 3), "names": ["height", "width", "channels"]}
+    features = {"observation.images.front": spec, "observation.images.wrist": spec,
+                "observation.state": {"dtype": "float32", "shape": (7,), "names": MOTION_NAMES},
+                "action": {"dtype": "float32", "shape": (7,), "names": MOTION_NAMES}}
+    dataset = LeRobotDataset.create(repo_id="lab/my_robot_pick", fps=10, features=features, root=str(root),
+                                    use_videos=True)
+    episodes = []
+    for seed, speed in zip(range(300, 300 + len(SPEEDS)), SPEEDS):
+        episode = generate.simulate_episode("language_pick_place", seed)
+        state, action = _stretch(_motion(episode["state"]), speed), _stretch(_motion(episode["action"]), speed)
+        front = _camera_frame(episode["images"][0])
+        for k in range(len(state)):
+            dataset.add_frame({"observation.images.front": front, "observation.images.wrist": 255 - front,
+                               "observation.state": state[k].astype(np.float32),
+                               "action": action[k].astype(np.float32), "task": episode["prompt"]})
+        dataset.save_episode()
+        episodes.append({"prompt": episode["prompt"], "objects": episode["objects"], "mask": episode["masks"][0],
+                         "frames": len(state)})
+    dataset.finalize()
+    return str(root), episodes
+
+
+@pytest.fixture(scope="module")
+def annotated(recording, tmp_path_factory):
+    source, _ = recording
+    out = str(tmp_path_factory.mktemp("annotated") / "my_robot_pick_masks")
+    report = json.loads(annotate.annotate(source, out, camera="observation.images.front", progress=False))
+    return out, report
+
+
+def test_motion_layouts_are_read_from_names():
+    layout = recorded.motion_layout("action", MOTION_NAMES)
+    assert (layout.position, layout.rotation, layout.rotation_indices, layout.gripper) == ((0, 1, 2), "rotvec", (3, 4, 5), 6)
+    euler = recorded.motion_layout("observation.state", {"motors": ["gripper", "roll", "pitch", "yaw", "x", "y", "z"]})
+    assert euler.rotation == "euler" and euler.position == (4, 5, 6) and euler.gripper == 0
+    quat = recorded.motion_layout("action", ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper"])
+    assert quat.rotation_indices == (6, 3, 4, 5)
+    poses, scale = recorded.to_poses([np.array([[0, 0, 0, 0, 0, 0, 1, 20.0], [0, 0, 0, 0, 0, 0, 1, 80.0]])], quat)
+    np.testing.assert_allclose(poses[0][:, 3:7], [[1, 0, 0, 0]] * 2)
+    assert scale == (20.0, 80.0) and poses[0][:, 7].tolist() == [0.0, 1.0]
+    euler_pose, _ = recorded.to_poses([np.array([[0.5, 0, 0, np.pi / 2, 1, 2, 3]] * 2)], euler)
+    np.testing.assert_allclose(euler_pose[0][0, 3:7], [np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)], atol=1e-9)
+
+
+@pytest.mark.parametrize("names, message", [
+    (["shoulder_pan.pos", "shoulder_lift.pos", "elbow.pos", "wrist.pos", "gripper.pos"], "joint-space"),
+    (["x", "y", "z", "rx", "ry", "rz"], "exactly one dimension named like 'gripper'"),
+    (None, "does not name its dimensions"),
+])
+def test_motion_vectors_the_core_cannot_learn_are_refused(names, message):
+    with pytest.raises(InputError, match=message):
+        recorded.motion_layout("action", names)
+
+
+def test_the_camera_is_the_annotated_one_or_chosen():
+    features = {"observation.images.front": {"dtype": "video"}, "observation.images.wrist": {"dtype": "image"},
+                "action": {"dtype": "float32"}}
+    with pytest.raises(InputError, match="2 cameras .*choose one with --camera"):
+        recorded.choose_camera(features, None, None)
+    assert recorded.choose_camera(features, "observation.images.wrist", None) == "observation.images.wrist"
+    assert recorded.choose_camera(features, None, "observation.images.front") == "observation.images.front"
+    with pytest.raises(InputError, match="masks were made on camera"):
+        recorded.choose_camera(features, "observation.images.wrist", "observation.images.front")
+    with pytest.raises(InputError, match="no camera 'top'"):
+        recorded.choose_camera(features, "top", None)
+
+
+def test_gripper_events_use_hysteresis_and_alignment_moves_them_to_the_median():
+    noisy = np.array([1, 0.6, 0.4, 0.3, 0.4, 0.36, 0.2, 0.5, 0.7, 1.0])
+    assert alignment.gripper_events(noisy) == [3, 8]
+
+    def demo(close: int, open_: int, length: int) -> np.ndarray:
+        trajectory = np.zeros((length, 8))
+        trajectory[:, 0] = np.arange(length)  # x tells which source frame a row came from
+        trajectory[:, 3] = 1.0
+        trajectory[:, 7] = 1.0
+        trajectory[close:open_, 7] = 0.0
+        return trajectory
+
+    demos = [demo(10, 30, 40), demo(20, 50, 70), demo(14, 40, 50), demo(10, 20, 25)[:, :]]
+    demos[3][:, 7] = 1.0  # no gripper events: its own group
+    aligned, report = alignment.align_demonstrations(demos, fps=10.0)
+    assert report.majority == 2 and report.outliers() == [3]
+    assert report.groups[2]["event_times_s"] == [1.4, 4.0] and report.groups[2]["duration_s"] == 4.9
+    for trajectory in aligned[:3]:
+        assert len(trajectory) == 50 and alignment.gripper_events(trajectory[:, 7]) == [14, 40]
+    np.testing.assert_allclose(aligned[1][14, 0], 20.0)  # its closing frame landed on the median
+    np.testing.assert_allclose(aligned[3], demos[3])  # alone in its group: unchanged
+
+
+def test_annotate_adds_masks_from_the_prompt_and_keeps_the_videos(recording, annotated):
+    source, episodes = recording
+    out, report = annotated
+    assert report["annotated"] == len(episodes) and not report["skipped"] and report["camera"] == "observation.images.front"
+    assert report["task"] == "my_robot_pick" and os.path.isfile(report["contact_sheet"])
+    assert not os.path.exists(out + ".staging") and not os.path.exists(out + ".partial")
+    demos = core_data.load_demonstrations(out)
+    assert demos.images.shape == (len(episodes), HEIGHT, WIDTH, 3) and demos.camera == "observation.images.front"
+    assert demos.task == "my_robot_pick" and "rotvec" in demos.motion and "gripper 0..85 read as 0..1" in demos.motion
+    for b, episode in enumerate(episodes):
+        # The segmenter's masks cover the simulator's true masks of the same objects.
+        truth = np.asarray(Image.fromarray(episode["mask"]).resize((HEIGHT, HEIGHT), Image.NEAREST))
+        left = (WIDTH - HEIGHT) // 2
+        for label in (1, 2):
+            found = demos.masks[b][:, left:left + HEIGHT] == label
+            overlap = (found & (truth == label)).sum() / max(1, (found | (truth == label)).sum())
+            assert overlap > 0.5, (b, label, overlap)
+        assert len(demos.trajectories[b]) == episode["frames"] + 1
+        assert demos.trajectories[b][:, 7].min() >= 0 and demos.trajectories[b][:, 7].max() <= 1.0
+    with pytest.raises(InputError, match="already has coarse masks"):
+        annotate.annotate(out, out + "-again", progress=False)
+
+
+def test_training_reads_the_recording_aligned(annotated, tmp_path):
+    out, _ = annotated
+    model_dir = str(tmp_path / "model")
+    config = tmp_path / "tiny.json"
+    config.write_text(json.dumps({"field_resolution": 32, "latent_dim": 8, "field_width": 32, "field_layers": 2,
+                                  "num_endpoints": 2, "steps": 30, "search_candidates": 8, "refine_steps": 3}))
+    report = json.loads(training.train(out, model_dir, [str(config)], progress=False))
+    assert report["task"] == "my_robot_pick" and report["demos"] == len(SPEEDS)
+    card = open(os.path.join(model_dir, "README.md")).read()
+    assert "`observation.images.front`" in card and "rotvec" in card
+    assert "4 demonstrations with 2 gripper event(s)" in card
+    with pytest.raises(InputError, match="masks were made on camera"):
+        training.train(out, str(tmp_path / "other"), [str(config)], progress=False,
+                       recording=core_data.RecordingOptions(camera="observation.images.wrist"))
+
+
+def test_a_recording_without_masks_is_refused_with_the_fix(recording, tmp_path):
+    source, _ = recording
+    with pytest.raises(InputError, match="cnfmp dataset annotate"):
+        training.train(source, str(tmp_path / "model"), progress=False)
+
+
+def test_an_object_not_found_is_reported_and_hand_made_masks_fill_in(recording, tmp_path):
+    source, episodes = recording
+    masks_dir = tmp_path / "hand"
+    masks_dir.mkdir()
+    hand = np.zeros((HEIGHT, WIDTH), np.uint8)
+    hand[100:140, 100:140] = 1
+    Image.fromarray(hand).save(masks_dir / "episode_1.png")
+    out = str(tmp_path / "with_unicorn")
+    report = json.loads(annotate.annotate(source, out, camera="observation.images.front",
+                                          objects=["unicorn"], masks_dir=str(masks_dir), progress=False))
+    assert report["annotated"] == 1 and report["hand_made"] == 1
+    assert [s["episode"] for s in report["skipped"]] == [0, 2, 3]
+    assert report["skipped"][0]["missing"][0]["phrase"] == "unicorn"
+    demos = core_data.load_demonstrations(out)
+    assert len(demos) == 1 and demos.objects == [["unicorn"]] and (demos.masks[0] == hand).all()
+    assert len(demos.trajectories[0]) == episodes[1]["frames"] + 1
