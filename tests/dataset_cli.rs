@@ -333,3 +333,96 @@ fn a_conversion_killed_midway_resumes_to_the_same_dataset() {
         assert!(bytes_a == bytes_b, "{name_a} differs");
     }
 }
+
+/// A recording as `lerobot-record` writes one: two video cameras at 320x240, 15 fps, a
+/// rotation-vector end-effector pose with the gripper in millimetres, task prompts, no masks
+/// (simulated pick-and-place scenes drawn onto the frames). Also writes `scene.png`,
+/// `masks.png` and `objects.json` of its first episode's scene for `predict`.
+fn lerobot_recording(root: &Path) {
+    let script = r#"
+import json, os, sys
+import cv2, numpy as np
+from PIL import Image
+from cnfmp import geometry
+from cnfmp.data import generate
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+root, scene_dir = sys.argv[1], sys.argv[2]
+names = ["ee.x", "ee.y", "ee.z", "ee.rx", "ee.ry", "ee.rz", "gripper.pos"]
+video = {"dtype": "video", "shape": (240, 320, 3), "names": ["height", "width", "channels"]}
+dataset = LeRobotDataset.create(repo_id="lab/pick", fps=15, root=root, use_videos=True, features={
+    "observation.images.front": video, "observation.images.wrist": video,
+    "action": {"dtype": "float32", "shape": (7,), "names": names}})
+def frame(image, nearest=False):
+    out = np.full((240, 320) + image.shape[2:], 128 if image.ndim == 3 else 0, np.uint8)
+    out[:, 40:280] = cv2.resize(image, (240, 240), interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR)
+    return out
+for k, speed in enumerate([1.0, 1.4, 0.8]):
+    ep = generate.simulate_episode("language_pick_place", 400 + k)
+    a = ep["action"]
+    motion = np.concatenate([a[:, :3], geometry.to_rotation(a[:, 3:7]).as_rotvec(), a[:, 7:] * 85], axis=1)
+    steps = np.linspace(0, len(motion) - 1, int(len(motion) * 1.5 * speed))
+    motion = np.stack([np.interp(steps, np.arange(len(motion)), c) for c in motion.T], axis=1)
+    front = frame(ep["images"][0])
+    for row in motion:
+        dataset.add_frame({"observation.images.front": front, "observation.images.wrist": front[::-1].copy(),
+                           "action": row.astype(np.float32), "task": ep["prompt"]})
+    dataset.save_episode()
+    if k == 0:
+        os.makedirs(scene_dir)
+        Image.fromarray(front).save(os.path.join(scene_dir, "image.png"))
+        # The prompt names the first two objects (target, destination); the rest are distractors.
+        masks = np.where(ep["masks"][0] > 2, 0, ep["masks"][0]).astype(np.uint8)
+        Image.fromarray(frame(masks, nearest=True)).save(os.path.join(scene_dir, "masks.png"))
+        json.dump(ep["objects"][:2], open(os.path.join(scene_dir, "objects.json"), "w"))
+dataset.finalize()
+"#;
+    let status = Command::new(python())
+        .args(["-c", script, arg(&root.join("recording")), arg(&root.join("scene"))])
+        .env("PYTHONPATH", repo().join("python"))
+        .status()
+        .unwrap();
+    assert!(status.success());
+}
+
+#[test]
+fn a_lerobot_recording_is_annotated_trained_and_predicted() {
+    let dir = tempfile::tempdir().unwrap();
+    lerobot_recording(dir.path());
+    let recording = dir.path().join("recording");
+    let annotated = dir.path().join("annotated");
+    let model = dir.path().join("model");
+    let config = dir.path().join("tiny.json");
+    std::fs::write(&config, TINY_CONFIG).unwrap();
+    let bad = |output: &Output, message: &str| {
+        assert_eq!(output.status.code(), Some(2), "{}", stderr(output));
+        assert!(stderr(output).contains(message), "{}", stderr(output));
+    };
+
+    bad(&cnfmp(&["dataset", "annotate", "--dataset", arg(&recording), "--out", arg(&annotated)]), "choose one with --camera");
+    bad(&cnfmp(&["train", "--dataset", arg(&recording), "--out", arg(&model)]), "cnfmp dataset annotate");
+    assert!(!annotated.exists() && !model.exists());
+
+    let front = "observation.images.front";
+    let report = ok(&cnfmp(&["dataset", "annotate", "--dataset", arg(&recording), "--out", arg(&annotated), "--camera", front]), "annotate");
+    assert_eq!((report["annotated"].as_u64(), report["episodes"].as_u64()), (Some(3), Some(3)), "{report}");
+    assert!(Path::new(report["contact_sheet"].as_str().unwrap()).is_file());
+
+    let train = |extra: &[&str]| {
+        let mut args = vec!["train", "--dataset", arg(&annotated), "--out", arg(&model), "--config", arg(&config), "--steps", "20"];
+        args.extend_from_slice(extra);
+        cnfmp(&args)
+    };
+    bad(&train(&["--camera", "observation.images.wrist"]), "masks were made on camera");
+    bad(&train(&["--motion-from", "observation.state"]), "lacks feature(s) observation.state");
+    bad(&train(&["--motion-names", "a,b,c,d,e,f,g"]), "not an end-effector pose");
+    ok(&train(&[]), "train");
+    let card = std::fs::read_to_string(model.join("README.md")).unwrap();
+    assert!(card.contains("3 demonstrations with 2 gripper event(s)") && card.contains("(rotvec); gripper 0..") && card.contains(" read as 0..1"), "{card}");
+
+    let scene = dir.path().join("scene");
+    let trajectory = dir.path().join("trajectory.json");
+    ok(&cnfmp(&["predict", "--model", arg(&model), "--image", arg(&scene.join("image.png")), "--masks", arg(&scene.join("masks.png")),
+                "--objects", arg(&scene.join("objects.json")), "--out", arg(&trajectory)]), "predict");
+    let predicted = Trajectory::load(&trajectory).unwrap();
+    assert!(predicted.frames.len() > 20);
+}

@@ -13,15 +13,18 @@ import pytest
 from PIL import Image
 
 from cnfmp import geometry
-from cnfmp.core import alignment, data as core_data, training
+from cnfmp.core import alignment, api, data as core_data, training
 from cnfmp.data import annotate, generate, recorded
 from cnfmp.errors import InputError
+from cnfmp.images import encode_png
 
 WIDTH, HEIGHT = 320, 240
 MOTION_NAMES = ["ee.x", "ee.y", "ee.z", "ee.rx", "ee.ry", "ee.rz", "gripper.pos"]
 GRIPPER_MM = 85.0
 #: Per episode, how much slower than the expert the operator moved (time stretch factor).
 SPEEDS = [1.0, 1.5, 0.8, 1.25]
+#: The recording's frame rate; the simulator's demonstrations are resampled from 10 Hz.
+FPS = 15
 
 
 def _camera_frame(image: np.ndarray) -> np.ndarray:
@@ -57,12 +60,14 @@ def recording(tmp_path_factory):
     features = {"observation.images.front": spec, "observation.images.wrist": spec,
                 "observation.state": {"dtype": "float32", "shape": (7,), "names": MOTION_NAMES},
                 "action": {"dtype": "float32", "shape": (7,), "names": MOTION_NAMES}}
-    dataset = LeRobotDataset.create(repo_id="lab/my_robot_pick", fps=10, features=features, root=str(root),
+    dataset = LeRobotDataset.create(repo_id="lab/my_robot_pick", fps=FPS, features=features, root=str(root),
                                     use_videos=True)
+    rate = FPS / generate.DATASET_FPS
     episodes = []
     for seed, speed in zip(range(300, 300 + len(SPEEDS)), SPEEDS):
         episode = generate.simulate_episode("language_pick_place", seed)
-        state, action = _stretch(_motion(episode["state"]), speed), _stretch(_motion(episode["action"]), speed)
+        state = _stretch(_motion(episode["state"]), speed * rate)
+        action = _stretch(_motion(episode["action"]), speed * rate)
         front = _camera_frame(episode["images"][0])
         for k in range(len(state)):
             dataset.add_frame({"observation.images.front": front, "observation.images.wrist": 255 - front,
@@ -70,7 +75,7 @@ def recording(tmp_path_factory):
                                "action": action[k].astype(np.float32), "task": episode["prompt"]})
         dataset.save_episode()
         episodes.append({"prompt": episode["prompt"], "objects": episode["objects"], "mask": episode["masks"][0],
-                         "frames": len(state)})
+                         "frames": len(state), "image": front})
     dataset.finalize()
     return str(root), episodes
 
@@ -177,6 +182,12 @@ def test_training_reads_the_recording_aligned(annotated, tmp_path):
     card = open(os.path.join(model_dir, "README.md")).read()
     assert "`observation.images.front`" in card and "rotvec" in card
     assert "4 demonstrations with 2 gripper event(s)" in card
+    # Predict on a training scene: a trajectory of the aligned duration, at the camera's size.
+    demos = core_data.load_demonstrations(out)
+    prediction = json.loads(api.predict(model_dir, encode_png(demos.images[0]), encode_png(demos.masks[0]),
+                                        demos.objects[0]))
+    frames = prediction["frames"]
+    assert abs(frames[-1]["t"] - json.loads(open(os.path.join(model_dir, "config.json")).read())["duration_s"]) < 0.2
     with pytest.raises(InputError, match="masks were made on camera"):
         training.train(out, str(tmp_path / "other"), [str(config)], progress=False,
                        recording=core_data.RecordingOptions(camera="observation.images.wrist"))
@@ -204,3 +215,44 @@ def test_an_object_not_found_is_reported_and_hand_made_masks_fill_in(recording, 
     demos = core_data.load_demonstrations(out)
     assert len(demos) == 1 and demos.objects == [["unicorn"]] and (demos.masks[0] == hand).all()
     assert len(demos.trajectories[0]) == episodes[1]["frames"] + 1
+
+
+def test_bad_recordings_get_clear_errors_and_leave_nothing(recording, tmp_path):
+    import glob
+    import shutil
+
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    source, _ = recording
+    out = str(tmp_path / "out")
+    with pytest.raises(InputError, match="no camera 'observation.images.top'"):
+        annotate.annotate(source, out, camera="observation.images.top", progress=False)
+    broken = str(tmp_path / "broken")
+    shutil.copytree(source, broken)
+    video = sorted(glob.glob(os.path.join(broken, "videos", "observation.images.front", "**", "*.mp4"), recursive=True))[0]
+    with open(video, "wb") as handle:
+        handle.write(b"not a video")
+    with pytest.raises(InputError, match=f"the video {video} of camera observation.images.front cannot be decoded"):
+        annotate.annotate(broken, out, camera="observation.images.front", progress=False)
+    os.remove(video)
+    with pytest.raises(InputError, match=f"file\\(s\\) of the dataset are missing, e.g. {video}"):
+        annotate.annotate(broken, out, camera="observation.images.front", progress=False)
+    assert not glob.glob(out + "*"), "nothing is left behind by a refused annotation"
+
+    # No task prompt, no --objects; and a gripper in millimetres that never moves.
+    spec = {"dtype": "float32", "shape": (7,), "names": MOTION_NAMES}
+    silent = LeRobotDataset.create(repo_id="lab/silent", fps=FPS, root=str(tmp_path / "silent"), use_videos=True,
+                                   features={"observation.images.front": {"dtype": "video", "shape": (HEIGHT, WIDTH, 3),
+                                                                          "names": ["height", "width", "channels"]},
+                                             "action": spec})
+    for k in range(3):
+        silent.add_frame({"observation.images.front": np.zeros((HEIGHT, WIDTH, 3), np.uint8),
+                          "action": np.array([0, 0, 0.1 * k, 0, 0, 0, 40.0], np.float32), "task": " "})
+    silent.save_episode()
+    silent.finalize()
+    with pytest.raises(InputError, match="no task prompt"):
+        annotate.annotate(str(tmp_path / "silent"), out, progress=False)
+    episode = [np.array([[0, 0, 0.1 * k, 0, 0, 0, 40.0] for k in range(3)])]
+    with pytest.raises(InputError, match="stays at 40 in every episode"):
+        recorded.to_poses(episode, recorded.motion_layout("action", MOTION_NAMES))
+    assert not glob.glob(out + "*")

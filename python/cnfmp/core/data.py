@@ -85,7 +85,7 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
     # Imported here: the dataset readers pull in the simulator and scipy, which inference
     # (scene_inputs, a cold `cnfmp predict`) never needs.
     from cnfmp.data import recorded
-    from cnfmp.data.lerobot_io import open_dataset
+    from cnfmp.data.lerobot_io import first_frame, open_dataset
 
     dataset = open_dataset(dataset_dir)
     features = dataset.meta.features
@@ -109,9 +109,9 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
     starts = dataset.meta.episodes["dataset_from_index"]
     ends = dataset.meta.episodes["dataset_to_index"]
     images, masks, objects, episodes, seeds, prompts, tasks = [], [], [], [], [], [], set()
-    for start, end in zip(starts, ends):
-        first = dataset[int(start)]
-        images.append((first[camera].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
+    for episode, (start, end) in enumerate(zip(starts, ends)):
+        first, image = first_frame(dataset, episode, camera)
+        images.append(image)
         masks.append(np.asarray(first["annotation.masks"], dtype=np.uint8))
         if masks[-1].shape != images[-1].shape[:2]:
             raise InputError(f"{dataset_dir}: episode {len(masks) - 1}'s masks are {masks[-1].shape[1]}x"

@@ -132,9 +132,12 @@ def annotate(dataset_dir: str, out_dir: str, camera: str | None = None, objects:
     from lerobot.datasets.dataset_tools import add_features, delete_episodes
 
     from cnfmp.data.generate import progress_bar
-    from cnfmp.data.lerobot_io import open_dataset
+    from cnfmp.data.lerobot_io import first_frame, open_dataset
     from cnfmp.segmenter.api import backend
 
+    dataset_dir, out_dir = os.fspath(dataset_dir), os.fspath(out_dir)
+    masks_dir = None if masks_dir is None else os.fspath(masks_dir)
+    weights = None if weights is None else os.fspath(weights)
     if os.path.exists(out_dir):
         raise InputError(f"{out_dir} already exists; datasets are never overwritten, choose a new --out")
     if masks_dir is not None and not os.path.isdir(masks_dir):
@@ -145,18 +148,23 @@ def annotate(dataset_dir: str, out_dir: str, camera: str | None = None, objects:
     if "annotation.masks" in features:
         raise InputError(f"{dataset_dir} already has coarse masks (annotation.masks); it trains as it is")
     camera = choose_camera(features, camera, None)
+    if objects is None:
+        prompts = [str(t) for t in dataset.meta.tasks.index]
+        if not any(p.strip() for p in prompts):
+            raise InputError(f"{dataset_dir}: the episodes have no task prompt to find the objects from; "
+                             "name them with --objects, e.g. --objects \"red cube, paper\"")
     task = task or re.sub(r"[^A-Za-z0-9_.-]+", "_", os.path.basename(os.path.abspath(dataset_dir))).strip("_") or "task"
-    staging = out_dir.rstrip("/") + ".staging"
-    os.makedirs(staging, exist_ok=True)
+    staging = out_dir.rstrip("/") + ".staging"  # made when the first result is kept
     segmenter = None
     starts = dataset.meta.episodes["dataset_from_index"]
     results, thumbs, resumed = {}, [], 0
     bar = progress_bar(len(starts), "annotating", progress)
-    for episode, start in enumerate(starts):
+    for episode in range(len(starts)):
         cached = os.path.join(staging, f"episode_{episode}.npz")
-        first = dataset[int(start)]
-        image = (first[camera].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+        first, image = first_frame(dataset, episode, camera)
         prompt = str(first["task"])
+        if not objects and not prompt.strip():
+            raise InputError(f"episode {episode} has no task prompt; name the objects with --objects")
         hand = os.path.join(masks_dir, f"episode_{episode}.png") if masks_dir else None
         if os.path.exists(cached):
             with np.load(cached) as saved:
@@ -170,6 +178,7 @@ def annotate(dataset_dir: str, out_dir: str, camera: str | None = None, objects:
                 segmenter = segmenter or backend(backend_name, weights)
                 result = _episode_result(image, prompt, objects, segmenter)
             meta = {k: v for k, v in result.items() if k != "labels"}
+            os.makedirs(staging, exist_ok=True)
             np.savez(cached + ".tmp.npz", labels=result["labels"], meta=json.dumps(meta))
             os.replace(cached + ".tmp.npz", cached)
         result["prompt"] = prompt

@@ -122,7 +122,40 @@ def open_dataset(dataset_dir: str):
         return LeRobotDataset(f"local/{os.path.basename(os.path.abspath(dataset_dir))}", root=dataset_dir,
                               video_backend="pyav")
     except Exception as err:  # lerobot raises many types for a damaged dataset
+        missing = _missing_files(dataset_dir)
+        if missing:  # lerobot would have fetched them from the hub: name them instead
+            raise InputError(f"{dataset_dir}: {len(missing)} file(s) of the dataset are missing, e.g. "
+                             f"{missing[0]}") from err
         raise InputError(f"{dataset_dir}: lerobot cannot read this dataset: {err}") from err
+
+
+def _missing_files(dataset_dir: str) -> list[str]:
+    """The data and video files the dataset's episode index lists that are not on disk."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+    try:
+        meta = LeRobotDatasetMetadata("local/check", root=dataset_dir)
+        paths = {str(meta.get_data_file_path(e)) for e in range(meta.total_episodes)}
+        paths |= {str(meta.get_video_file_path(e, key)) for e in range(meta.total_episodes) for key in meta.video_keys}
+    except Exception:  # the metadata itself is damaged: lerobot's own message says more
+        return []
+    return sorted(os.path.join(dataset_dir, p) for p in paths if not os.path.isfile(os.path.join(dataset_dir, p)))
+
+
+def first_frame(dataset, episode: int, camera: str) -> tuple[dict, np.ndarray]:
+    """Episode `episode`'s first frame of `dataset` as lerobot returns it, and its `camera`
+    image as (H, W, 3) uint8. InputError naming the file when the camera's video is
+    missing or cannot be decoded."""
+    start = int(dataset.meta.episodes["dataset_from_index"][episode])
+    try:
+        frame = dataset[start]
+    except Exception as err:  # pyav and lerobot raise many types for a bad video
+        if camera in dataset.meta.video_keys:
+            path = os.path.join(str(dataset.root), str(dataset.meta.get_video_file_path(episode, camera)))
+            state = "is missing" if not os.path.isfile(path) else "cannot be decoded"
+            raise InputError(f"episode {episode}: the video {path} of camera {camera} {state} ({err})") from err
+        raise InputError(f"episode {episode}: lerobot cannot read its first frame ({err})") from err
+    return frame, (frame[camera].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
 
 
 _OPEN: dict[str, object] = {}

@@ -122,20 +122,25 @@ def _quaternions(values: np.ndarray, layout: MotionLayout) -> np.ndarray:
 def to_poses(episodes: list[np.ndarray], layout: MotionLayout) -> tuple[list[np.ndarray], tuple[float, float] | None]:
     """Every episode's (T_b, D) motion vectors as (T_b, 8) ``x y z qw qx qy qz gripper`` poses.
 
-    A gripper recorded in [0, 1] is kept as it is. Any other range (millimetres, 0-100, motor
-    units) is rescaled linearly to [0, 1] over the dataset's range, low to 0 (one that never
-    moves becomes 1). Returns (poses, the recorded (low, high) mapped to (0, 1), or None when
-    kept).
+    A gripper recorded in [0, 1] is kept as it is (a constant one too: a task without a
+    grasp). Any other range (millimetres, 0-100, motor units) is rescaled linearly to [0, 1]
+    over the dataset's range, low to 0. Returns (poses, the recorded (low, high) mapped to
+    (0, 1), or None when kept). InputError for a gripper in other units that never moves:
+    most likely the wrong dimension.
     """
     grippers = np.concatenate([e[:, layout.gripper] for e in episodes]).astype(np.float64)
     low, high = float(grippers.min()), float(grippers.max())
     scale = None if (low >= 0.0 and high <= 1.0) else (low, high)
+    if scale is not None and high - low < 1e-9:
+        raise InputError(f"{layout.source}'s gripper ({layout.names[layout.gripper]}) stays at {low:g} in every "
+                         "episode, outside [0, 1], so open and closed cannot be told apart; check the dimension "
+                         "names (--motion-names) or record the gripper as an opening in [0, 1]")
     poses = []
     for values in episodes:
         values = np.asarray(values, np.float64)
         gripper = values[:, layout.gripper]
         if scale is not None:
-            gripper = (gripper - low) / (high - low) if high > low else np.ones_like(gripper)
+            gripper = (gripper - low) / (high - low)
         poses.append(np.concatenate([values[:, list(layout.position)], _quaternions(values, layout),
                                      gripper[:, None]], axis=1))
     return poses, scale
