@@ -34,8 +34,9 @@ ANNOTATION_DIR = "annotation"
 _THUMB_WIDTH = 200
 
 
-def _episode_result(image: np.ndarray, prompt: str, objects: list[str] | None, segmenter) -> dict:
-    """Segments one first frame. Returns ``{"labels" (H, W) uint8, "objects", "roles",
+def annotate_image(image: np.ndarray, prompt: str, objects: list[str] | None, segmenter) -> dict:
+    """Segments one scene image (H, W, 3) uint8 as annotation does, so that a model trained on an
+    annotated dataset gets the same slot order at prediction. Returns ``{"labels" (H, W) uint8, "objects", "roles",
     "scores", "missing": [{"phrase", "score"}]}``, objects in ROLE_ORDER order."""
     from cnfmp.segmenter import segment
 
@@ -176,7 +177,7 @@ def annotate(dataset_dir: str, out_dir: str, camera: str | None = None, objects:
                 result = _hand_made(hand, image.shape[:2], objects, prompt)
             else:
                 segmenter = segmenter or backend(backend_name, weights)
-                result = _episode_result(image, prompt, objects, segmenter)
+                result = annotate_image(image, prompt, objects, segmenter)
             meta = {k: v for k, v in result.items() if k != "labels"}
             os.makedirs(staging, exist_ok=True)
             np.savez(cached + ".tmp.npz", labels=result["labels"], meta=json.dumps(meta))

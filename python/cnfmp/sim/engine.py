@@ -98,6 +98,15 @@ class Simulation:
         mujoco.mj_forward(m, self.data)
 
     # --- camera ---------------------------------------------------------------------------
+    def set_camera_size(self, width: int, height: int) -> None:
+        """Renders from now on at `width` x `height` px instead of the benchmark's square
+        IMAGE_SIZE, with the same vertical field of view (a wider image sees more of the
+        table at the sides); a lab-like camera for the re-recorded benchmark."""
+        self.model.vis.global_.offwidth, self.model.vis.global_.offheight = width, height
+        if self._renderer is not None:
+            self._renderer.close()
+        self._renderer = mujoco.Renderer(self.model, height, width)
+
     def _render(self, segmentation: bool) -> np.ndarray:
         if self._renderer is None:
             self._renderer = mujoco.Renderer(self.model, sc.IMAGE_SIZE, sc.IMAGE_SIZE)
