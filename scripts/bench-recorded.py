@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import time
 
 import numpy as np
@@ -119,7 +120,7 @@ def evaluate(model_dir: str, task: str, scenes: int, segmenter) -> dict:
         success, reasons = trial.execute(task, seed, position, orientation, gripper)
         successes += success
         for reason in reasons:
-            kind = reason.split(" (")[0]
+            kind = re.sub(r"[-+]?\d+(\.\d+)?", "#", reason).split(":")[0]  # one count per kind of failure
             failures[kind] = failures.get(kind, 0) + 1
         from cnfmp.sim import api as sim
 

@@ -406,6 +406,9 @@ fn a_lerobot_recording_is_annotated_trained_and_predicted() {
     let report = ok(&cnfmp(&["dataset", "annotate", "--dataset", arg(&recording), "--out", arg(&annotated), "--camera", front]), "annotate");
     assert_eq!((report["annotated"].as_u64(), report["episodes"].as_u64()), (Some(3), Some(3)), "{report}");
     assert!(Path::new(report["contact_sheet"].as_str().unwrap()).is_file());
+    let checks = cnfmp(&["dataset", "validate", arg(&annotated)]);
+    assert!(checks.status.success(), "{}", String::from_utf8_lossy(&checks.stdout));
+    assert!(String::from_utf8_lossy(&checks.stdout).contains("PASS motion layout: action: ee.x ee.y ee.z ee.rx ee.ry ee.rz gripper.pos (rotvec)"));
 
     let train = |extra: &[&str]| {
         let mut args = vec!["train", "--dataset", arg(&annotated), "--out", arg(&model), "--config", arg(&config), "--steps", "20"];

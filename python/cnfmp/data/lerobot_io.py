@@ -244,6 +244,10 @@ def inspect(dataset_dir: str) -> str:
     own ``LeRobotDataset``, decodes the first and last frame of every episode through it, and
     checks the annotations against the images.
 
+    The camera is the annotated one (else the benchmark's front camera, else the first); the
+    trajectories are the measured states (else the actions) read by their layout
+    (:mod:`cnfmp.data.recorded`).
+
     Returns JSON ``{"checks": [{"name", "ok", "detail"}], "fps", "episodes": [{"index",
     "timestamps": [...], "state": [[8 floats] per frame]}]}``; the trajectory invariants are
     checked by the caller (the Rust trajectory code).
@@ -254,16 +258,30 @@ def inspect(dataset_dir: str) -> str:
     except InputError as err:
         return json.dumps({"checks": [{"name": "lerobot read-back", "ok": False, "detail": str(err)}],
                            "fps": 0.0, "episodes": []})
+    from cnfmp.data import recorded
+
     info = dataset.meta.info
+    features = dataset.meta.features
     checks.append({"name": "format version", "ok": info.get("codebase_version") == "v3.0",
                    "detail": f"codebase_version {info.get('codebase_version')} (cnfmp writes v3.0)"})
-    needed = {IMAGE_KEY, "observation.state", "action", "annotation.masks", "annotation.objects"}
-    missing = sorted(needed - set(dataset.features))
+    cameras = recorded.camera_keys(features)
+    first_scene = json.loads(dataset.hf_dataset[0]["annotation.scene"] or "{}") if "annotation.scene" in features else {}
+    camera = first_scene.get("camera") or (IMAGE_KEY if IMAGE_KEY in cameras else (cameras or [None])[0])
+    needed = {"action", "annotation.masks", "annotation.objects"}
+    missing = sorted(needed - set(features)) + ([] if camera else ["a camera (image or video feature)"])
     checks.append({"name": "cnfmp features", "ok": not missing,
-                   "detail": f"missing {', '.join(missing)}" if missing else "image, state, action, masks and objects present"})
+                   "detail": f"missing {', '.join(missing)}" if missing else
+                   f"camera {camera}, action, masks and objects present"})
+    source = "observation.state" if "observation.state" in features else "action"
+    layout = None
+    if source in features:
+        try:
+            layout = recorded.motion_layout(source, features[source].get("names"))
+            checks.append({"name": "motion layout", "ok": True, "detail": layout.describe()})
+        except InputError as err:
+            checks.append({"name": "motion layout", "ok": False, "detail": str(err)})
     problems, episodes = [], []
-    columns = [c for c in ("observation.state", "timestamp") if c in dataset.features]
-    table = dataset.hf_dataset.with_format(None).select_columns(columns)[:]
+    table = dataset.hf_dataset.with_format(None).select_columns([source, "timestamp"])[:] if layout else None
     starts = dataset.meta.episodes["dataset_from_index"]
     ends = dataset.meta.episodes["dataset_to_index"]
     try:
@@ -271,19 +289,26 @@ def inspect(dataset_dir: str) -> str:
             start, end = int(start), int(end)
             for row in {start, end - 1}:
                 item = dataset[row]  # decodes through lerobot's own transforms
-                image = item[IMAGE_KEY]
-                if "annotation.masks" in item:
-                    labels = np.asarray(item["annotation.masks"])
-                    objects = json.loads(item["annotation.objects"])
-                    if labels.shape != tuple(image.shape[1:]):
-                        problems.append(f"episode {k} frame {row - start}: masks {labels.shape} do not match the image {tuple(image.shape[1:])}")
-                    elif int(labels.max(initial=0)) > len(objects):
-                        problems.append(f"episode {k} frame {row - start}: label {int(labels.max())} but only {len(objects)} object name(s)")
-            episodes.append({"index": k, "timestamps": table["timestamp"][start:end],
-                             "state": table["observation.state"][start:end]})
+                if camera is None or "annotation.masks" not in item:
+                    continue
+                image = item[camera]
+                labels = np.asarray(item["annotation.masks"])
+                objects = json.loads(item["annotation.objects"])
+                if labels.shape != tuple(image.shape[1:]):
+                    problems.append(f"episode {k} frame {row - start}: masks {labels.shape} do not match the image {tuple(image.shape[1:])}")
+                elif int(labels.max(initial=0)) > len(objects):
+                    problems.append(f"episode {k} frame {row - start}: label {int(labels.max())} but only {len(objects)} object name(s)")
+            if table is not None:
+                episodes.append({"index": k, "timestamps": table["timestamp"][start:end],
+                                 "motion": np.asarray(table[source][start:end], np.float64)})
+        if layout is not None and episodes:
+            poses, _ = recorded.to_poses([e.pop("motion") for e in episodes], layout)
+            for episode, pose in zip(episodes, poses):
+                episode["state"] = pose.tolist()
         checks.append({"name": "lerobot read-back", "ok": True,
                        "detail": f"LeRobotDataset read {dataset.meta.total_episodes} episodes, {dataset.meta.total_frames} frames"})
     except Exception as err:  # noqa: BLE001 - any failure to decode is the finding
+        episodes = []
         checks.append({"name": "lerobot read-back", "ok": False, "detail": f"{type(err).__name__}: {err}"})
     checks.append({"name": "annotations", "ok": not problems,
                    "detail": "; ".join(problems[:5]) if problems else "label maps match the images and name every label"})
