@@ -374,6 +374,7 @@ for k, speed in enumerate([1.0, 1.4, 0.8]):
         masks = np.where(ep["masks"][0] > 2, 0, ep["masks"][0]).astype(np.uint8)
         Image.fromarray(frame(masks, nearest=True)).save(os.path.join(scene_dir, "masks.png"))
         json.dump(ep["objects"][:2], open(os.path.join(scene_dir, "objects.json"), "w"))
+        open(os.path.join(scene_dir, "prompt.txt"), "w").write(ep["prompt"])
 dataset.finalize()
 "#;
     let status = Command::new(python())
@@ -428,4 +429,9 @@ fn a_lerobot_recording_is_annotated_trained_and_predicted() {
                 "--objects", arg(&scene.join("objects.json")), "--out", arg(&trajectory)]), "predict");
     let predicted = Trajectory::load(&trajectory).unwrap();
     assert!(predicted.frames.len() > 20);
+    // The annotation recorded each slot's prompt role, so a prompt drives the model too.
+    let prompt = std::fs::read_to_string(scene.join("prompt.txt")).unwrap();
+    let from_prompt = dir.path().join("from_prompt.json");
+    ok(&cnfmp(&["predict", "--model", arg(&model), "--image", arg(&scene.join("image.png")), "--prompt", &prompt, "--out", arg(&from_prompt)]), "predict --prompt");
+    assert_eq!(Trajectory::load(&from_prompt).unwrap().frames.len(), predicted.frames.len());
 }

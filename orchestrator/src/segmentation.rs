@@ -2,7 +2,7 @@
 //! `predict`, `eval` and `serve` share, the call that runs it, and a one-line-per-phrase
 //! description of its answer.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::Args;
 use segmenter_bridge::{Bridge, SegmentRequest, Segmentation};
@@ -23,14 +23,15 @@ pub struct BackendArgs {
     pub weights: Option<PathBuf>,
 }
 
-/// Segments `image` for `prompt`; with `task`, the label map is ordered for that task's
-/// models; with `pictures`, the per-phrase masks and the overlay are encoded too.
+/// Segments `image` for `prompt`; with `roles`, the label map is ordered for a model whose
+/// slots take those prompt roles; with `pictures`, the per-phrase masks and the overlay are
+/// encoded too.
 pub fn run_segmenter(
     bridge: &Bridge,
     image: Vec<u8>,
     prompt: &str,
     backend: &BackendArgs,
-    task: Option<&str>,
+    roles: Option<&[String]>,
     pictures: bool,
 ) -> Result<Segmentation, Failure> {
     Ok(bridge.segment(SegmentRequest {
@@ -38,9 +39,24 @@ pub fn run_segmenter(
         prompt: prompt.to_owned(),
         backend: backend.backend.clone(),
         weights: backend.weights.clone(),
-        task: task.map(str::to_owned),
+        roles: roles.map(<[String]>::to_vec),
         pictures,
     })?)
+}
+
+/// The prompt role of each object slot of the model at `model` (`ModelDescription::roles`:
+/// the vocabulary's task_roles, or those `cnfmp dataset annotate` recorded); BadInput when
+/// prompts cannot drive it.
+pub fn prompt_roles(bridge: &Bridge, model: &Path) -> Result<Vec<String>, Failure> {
+    let description = bridge.core_describe(model)?;
+    description.roles.ok_or_else(|| {
+        Failure::BadInput(format!(
+            "prompts cannot drive the {} model at {}: its objects have no prompt roles (neither task_roles in \
+             prompts/vocabulary.json nor an annotation by `cnfmp dataset annotate` gives them); pass coarse masks instead",
+            description.task,
+            model.display()
+        ))
+    })
 }
 
 /// One line per phrase: what was found, where, how sure.

@@ -17,6 +17,7 @@ from cnfmp.core import alignment, api, data as core_data, training
 from cnfmp.data import annotate, generate, recorded
 from cnfmp.errors import InputError
 from cnfmp.images import encode_png
+from cnfmp.segmenter import api as segmenter_api
 
 WIDTH, HEIGHT = 320, 240
 MOTION_NAMES = ["ee.x", "ee.y", "ee.z", "ee.rx", "ee.ry", "ee.rz", "gripper.pos"]
@@ -188,6 +189,11 @@ def test_training_reads_the_recording_aligned(annotated, tmp_path):
                                         demos.objects[0]))
     frames = prediction["frames"]
     assert abs(frames[-1]["t"] - json.loads(open(os.path.join(model_dir, "config.json")).read())["duration_s"]) < 0.2
+    # The annotation's roles travel with the model: a prompt orders the segmenter's masks for it.
+    roles = json.loads(api.describe(model_dir))["roles"]
+    assert roles == ["target", "destination"]
+    found = segmenter_api.segment(encode_png(demos.images[0]), demos.prompts[0], roles=roles, pictures=False)
+    assert found["slot_names"] == demos.objects[0]
     with pytest.raises(InputError, match="masks were made on camera"):
         training.train(out, str(tmp_path / "other"), [str(config)], progress=False,
                        recording=core_data.RecordingOptions(camera="observation.images.wrist"))

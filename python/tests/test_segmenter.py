@@ -8,7 +8,7 @@ import pytest
 
 from cnfmp.errors import InputError, NotGrounded
 from cnfmp.images import encode_png
-from cnfmp.segmenter import api, order_by_roles, phrases, segment
+from cnfmp.segmenter import api, order_by_roles, phrases, segment, task_roles
 from cnfmp.segmenter.backends import load_backend
 from cnfmp.segmenter.color import ColorBackend
 from cnfmp.segmenter.postprocess import PostprocessConfig, extract
@@ -148,7 +148,8 @@ def test_unknown_backend_and_missing_weights_are_input_errors(tmp_path):
 def test_labels_are_ordered_by_the_model_roles():
     image = scene_image()
     result = segment(image, "put the red block on the blue plate", ColorBackend())
-    assert order_by_roles(result, "language_pick_place") == [0, 1]
+    assert order_by_roles(result, task_roles("language_pick_place")) == [0, 1]
+    assert order_by_roles(result, ["destination", "target"]) == [1, 0]  # roles recorded by annotation
     out = api.segment(encode_png(image), "onto the blue plate, put the red block", "color", task="language_pick_place")
     document = json.loads(out["json"])
     assert out["slot_names"] == ["red block", "blue plate"]
@@ -156,11 +157,13 @@ def test_labels_are_ordered_by_the_model_roles():
     # A prompt that cannot fill the model's slots is NotGrounded (the HTTP API's 422), a kind
     # of InputError (exit code 2 on the command line).
     with pytest.raises(NotGrounded, match="needs a destination"):
-        order_by_roles(segment(image, "the red block", ColorBackend()), "language_pick_place")
+        order_by_roles(segment(image, "the red block", ColorBackend()), ["target", "destination"])
     with pytest.raises(NotGrounded, match="not found"):
-        order_by_roles(segment(image, "put the green ball on the blue plate", ColorBackend()), "language_pick_place")
+        order_by_roles(segment(image, "put the green ball on the blue plate", ColorBackend()), ["target", "destination"])
     with pytest.raises(NotGrounded, match="pass coarse masks"):
-        order_by_roles(result, "cube_stacking")
+        task_roles("cube_stacking")
+    out = api.segment(encode_png(image), "put the red block on the blue plate", "color", roles=["destination", "target"])
+    assert out["slot_names"] == ["blue plate", "red block"]
     assert issubclass(NotGrounded, InputError)
 
 

@@ -21,8 +21,9 @@ pub struct SegmentRequest {
     pub backend: String,
     /// Weights directory of the backend (default: its own default location).
     pub weights: Option<PathBuf>,
-    /// Order the label map for a core model of this task (label k = its k-th object slot).
-    pub task: Option<String>,
+    /// Order the label map for a core model whose object slots take these prompt roles, in
+    /// order (label k = the phrase of the k-th role; see `ModelDescription::roles`).
+    pub roles: Option<Vec<String>>,
     /// Also encode the per-phrase mask PNGs and the overlay (false leaves them empty).
     pub pictures: bool,
 }
@@ -111,7 +112,7 @@ impl Bridge {
                     prompt = request.prompt,
                     backend_name = request.backend,
                     weights = request.weights,
-                    task = request.task,
+                    roles = request.roles,
                     pictures = request.pictures,
                 );
                 let result = py.import("cnfmp.segmenter.api")?.call_method("segment", (), Some(&kwargs))?;

@@ -21,7 +21,7 @@ use crate::failure::Failure;
 use crate::files::write_atomically;
 use crate::model_dir::{check_training_outputs, model_task};
 use crate::seeds::{first_heldout_seed, heldout_seed_range, validation_seed_range};
-use crate::segmentation::{BackendArgs, run_segmenter};
+use crate::segmentation::{BackendArgs, prompt_roles, run_segmenter};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -198,9 +198,10 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
     let started = Instant::now();
     let bridge = Bridge::start_default()?;
     let simulator = Simulator::new(bridge)?;
+    let roles = if args.from_prompt { Some(prompt_roles(bridge, &args.model)?) } else { None };
     let mut episodes: Vec<Episode> = Vec::new();
     for (index, seed) in (args.seed_start..=last).enumerate() {
-        let episode = run_episode(bridge, &simulator, &args, seed)?;
+        let episode = run_episode(bridge, &simulator, &args, roles.as_deref(), seed)?;
         let successes = episodes.iter().filter(|e| e.success).count() + usize::from(episode.success);
         let outcome = match (episode.success, episode.med_cm.is_finite()) {
             (true, _) => format!("success MED {:.2} cm, {:.0} ms", episode.med_cm, episode.latency_ms),
@@ -236,12 +237,12 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
 /// segmenter from the prompt), predict, execute, compare with the expert. A scene the
 /// segmenter cannot ground or the model cannot take is a failed episode, not a failed
 /// evaluation.
-fn run_episode(bridge: &Bridge, simulator: &Simulator, args: &EvalArgs, seed: u64) -> Result<Episode, Failure> {
+fn run_episode(bridge: &Bridge, simulator: &Simulator, args: &EvalArgs, roles: Option<&[String]>, seed: u64) -> Result<Episode, Failure> {
     let scene = simulator.render(&args.task, seed)?;
     let call = Instant::now();
     let elapsed_ms = || call.elapsed().as_secs_f64() * 1e3;
-    let (masks, objects, segmentation) = if args.from_prompt {
-        match run_segmenter(bridge, scene.image.clone(), &scene.info.prompt, &args.segmenter, Some(&args.task), false) {
+    let (masks, objects, segmentation) = if let Some(roles) = roles {
+        match run_segmenter(bridge, scene.image.clone(), &scene.info.prompt, &args.segmenter, Some(roles), false) {
             Ok(found) => (found.labels_png, found.slot_names, Some(found.document)),
             Err(Failure::BadInput(message)) => return Ok(Episode::unpredicted(seed, format!("not segmented: {message}"), elapsed_ms())),
             Err(other) => return Err(other),

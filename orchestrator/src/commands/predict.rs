@@ -13,7 +13,7 @@ use serde_json::{Map, Value};
 
 use super::print_stdout;
 use super::scenes::{ObjectNames, SUMMARY_FILE, SceneInput, SceneObjects, list_scenes};
-use crate::segmentation::{BackendArgs, describe, run_segmenter};
+use crate::segmentation::{BackendArgs, describe, prompt_roles, run_segmenter};
 use super::shared::trajectory_of;
 use crate::files::read_bytes;
 use crate::model_dir::model_task;
@@ -99,7 +99,7 @@ struct PredictedScene {
 /// Predicts one scene with the resident model of `task`: masks as given, or the prompt
 /// segmented first. Bad input (an unreadable image, masks of another size, a prompt the
 /// segmenter cannot ground) is a `Failure::BadInput` naming it.
-fn predict_scene(bridge: &Bridge, model: &Path, task: &str, scene: &SceneInput, backend: &BackendArgs) -> Result<PredictedScene, Failure> {
+fn predict_scene(bridge: &Bridge, model: &Path, scene: &SceneInput, backend: &BackendArgs) -> Result<PredictedScene, Failure> {
     let image = read_bytes(&scene.image, "image")?;
     let (prediction, segmentation) = match &scene.objects {
         SceneObjects::Masks { masks, names } => {
@@ -107,7 +107,8 @@ fn predict_scene(bridge: &Bridge, model: &Path, task: &str, scene: &SceneInput, 
             (bridge.core_predict(model, image, masks.png(), masks.objects)?, None)
         }
         SceneObjects::Prompt(prompt) => {
-            let found = run_segmenter(bridge, image.clone(), prompt, backend, Some(task), false)?;
+            let roles = prompt_roles(bridge, model)?;
+            let found = run_segmenter(bridge, image.clone(), prompt, backend, Some(&roles), false)?;
             let prediction = bridge.core_predict(model, image, found.labels_png.clone(), found.slot_names.clone())?;
             (prediction, Some(found))
         }
@@ -135,8 +136,8 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
         _ => return Err(Failure::BadInput("give --image with --masks and --objects, or --image with --prompt, or --scenes".into())),
     };
     let scene = SceneInput { name: args.out.display().to_string(), image, objects };
-    let task = model_task(&args.model)?;
-    let done = predict_scene(Bridge::start_default()?, &args.model, &task, &scene, &args.segmenter)?;
+    model_task(&args.model)?; // a directory that is no model is refused before Python starts
+    let done = predict_scene(Bridge::start_default()?, &args.model, &scene, &args.segmenter)?;
     if let Some(found) = &done.segmentation {
         eprintln!("segmented by {}:\n{}", found.document.backend, describe(found));
     }
@@ -216,7 +217,7 @@ impl ScenesSummary {
 fn predict_scenes(model: &Path, scenes: &Path, backend: &BackendArgs, out: &Path) -> Result<(), Failure> {
     let started = Instant::now();
     let scenes = list_scenes(scenes)?;
-    let task = model_task(model)?;
+    model_task(model)?;
     require_new_or_empty_dir(out)?;
     fs::create_dir_all(out).map_err(|err| Failure::BadInput(format!("cannot create {}: {err}", out.display())))?;
     let bridge = Bridge::start_default()?;
@@ -226,7 +227,7 @@ fn predict_scenes(model: &Path, scenes: &Path, backend: &BackendArgs, out: &Path
     let mut outcome = Ok(());
     for scene in &scenes {
         let call = Instant::now();
-        let predicted = predict_scene(bridge, model, &task, scene, backend).and_then(|done| {
+        let predicted = predict_scene(bridge, model, scene, backend).and_then(|done| {
             write_atomically(&out.join(format!("{}.json", scene.name)), done.trajectory.to_json_string().as_bytes())?;
             Ok(done)
         });

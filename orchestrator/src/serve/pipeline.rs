@@ -24,9 +24,10 @@ pub enum SceneObjects {
 
 /// The Python work of one trajectory request.
 pub struct PipelineJob {
-    /// The served model's directory and task.
+    /// The served model's directory, and the prompt role of each of its object slots (used
+    /// when the objects come from a prompt).
     pub model_dir: PathBuf,
-    pub task: String,
+    pub roles: Option<Vec<String>>,
     /// The scene image as sent (PNG, JPEG, ...).
     pub image: Vec<u8>,
     pub objects: SceneObjects,
@@ -114,7 +115,7 @@ fn run(bridge: &Bridge, segmenter: &SegmenterChoice, job: PipelineJob) -> Pipeli
                 prompt,
                 backend: segmenter.backend.clone(),
                 weights: segmenter.weights.clone(),
-                task: Some(job.task),
+                roles: job.roles,
                 pictures: false,
             })?;
             (found.labels_png.clone(), found.slot_names.clone(), FoundObjects::Segmented(found))

@@ -171,7 +171,7 @@ async fn answer_trajectory(state: &AppState, request: Request, started: Instant)
     let size = check_image(&input.image, state.limits.max_image_side)?;
     let served = state.catalog.select(input.model.as_deref(), input.task.as_deref())?;
     let objects = scene_objects(served, prompt.clone(), input.masks, input.objects, size)?;
-    let job = PipelineJob { model_dir: served.dir.clone(), task: served.summary.task.clone(), image: input.image, objects };
+    let job = PipelineJob { model_dir: served.dir.clone(), roles: served.summary.roles.clone(), image: input.image, objects };
     let receiver = state.pipeline.submit(job).map_err(|refused| match refused {
         Refused::Full { capacity, retry_after_s } => ApiError::overloaded(retry_after_s, capacity),
         Refused::Stopped => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "shutting_down", "the server is shutting down"),

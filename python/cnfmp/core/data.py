@@ -35,6 +35,8 @@ class Demonstrations:
         prompts: the language instruction of each demonstration.
         camera: the camera feature the images come from.
         motion: how the trajectories were read (the recorded layout, for the model card).
+        roles: per demonstration, the prompt role of each object in label order, where
+            `cnfmp dataset annotate` recorded them (else empty).
     """
 
     task: str
@@ -47,6 +49,7 @@ class Demonstrations:
     prompts: list[str]
     camera: str = ""
     motion: str = ""
+    roles: list[list[str]] = dataclasses.field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.trajectories)
@@ -108,7 +111,7 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
     state = np.asarray(table["observation.state"], float) if prepend_state else None
     starts = dataset.meta.episodes["dataset_from_index"]
     ends = dataset.meta.episodes["dataset_to_index"]
-    images, masks, objects, episodes, seeds, prompts, tasks = [], [], [], [], [], [], set()
+    images, masks, objects, episodes, seeds, prompts, roles, tasks = [], [], [], [], [], [], [], set()
     for episode, (start, end) in enumerate(zip(starts, ends)):
         first, image = first_frame(dataset, episode, camera)
         images.append(image)
@@ -120,6 +123,7 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
         prompts.append(str(first["task"]))
         scene = json.loads(first.get("annotation.scene", "{}") or "{}")
         seeds.append(int(scene.get("seed", -1)))
+        roles.append(list(scene.get("roles", [])))
         tasks.add(scene.get("task", ""))
         rows = motion[start:end]
         episodes.append(np.concatenate([state[start:start + 1], rows]) if prepend_state else rows)
@@ -128,7 +132,7 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
     trajectories, scale = recorded.to_poses(episodes, layout)
     motion_text = layout.describe() + ("" if scale is None else f"; gripper {scale[0]:g}..{scale[1]:g} read as 0..1")
     return Demonstrations(tasks.pop(), float(dataset.fps), np.stack(images), np.stack(masks), objects,
-                          trajectories, seeds, prompts, camera, motion_text)
+                          trajectories, seeds, prompts, camera, motion_text, roles)
 
 
 def task_object_labels(labels: np.ndarray, count: int) -> np.ndarray:
@@ -140,7 +144,8 @@ def task_object_labels(labels: np.ndarray, count: int) -> np.ndarray:
 def keep_task_objects(demos: Demonstrations, count: int) -> Demonstrations:
     """`demos` with only the first `count` labelled objects; later labels become background."""
     return dataclasses.replace(demos, masks=task_object_labels(demos.masks, count),
-                               objects=[names[:count] for names in demos.objects])
+                               objects=[names[:count] for names in demos.objects],
+                               roles=[names[:count] for names in demos.roles])
 
 
 #: What :attr:`SceneInputs.observations` holds for each object, in its column order, all in

@@ -126,20 +126,21 @@ def task_roles(task: str) -> list[str]:
     return list(roles)
 
 
-def order_by_roles(segmentation: Segmentation, task: str) -> list[int]:
-    """For a model of `task`, the phrase index that fills each object slot: slot k takes the
-    first phrase whose role is the task's k-th role (``task_roles`` in prompts/vocabulary.json).
+def order_by_roles(segmentation: Segmentation, roles: list[str]) -> list[int]:
+    """For a model whose object slots take the prompt roles `roles` in order (a task's
+    ``task_roles`` in prompts/vocabulary.json, or the roles recorded by `cnfmp dataset
+    annotate`), the phrase index that fills each slot: slot k takes the first phrase whose
+    role is the k-th role.
 
-    Raises NotGrounded when the task has no roles on record or the prompt lacks one, or when
-    a needed object was not found in the image.
+    Raises NotGrounded when the prompt lacks one of the roles, or when a needed object was
+    not found in the image.
     """
-    roles = task_roles(task)
     order = []
     for role in roles:
         index = next((k for k, p in enumerate(segmentation.phrases) if p.role == role), None)
         if index is None:
             named = ", ".join(f"{p.text!r} ({p.role})" for p in segmentation.phrases)
-            raise NotGrounded(f"a {task} model needs a {role} in the prompt ({' and '.join(roles)}); "
+            raise NotGrounded(f"the model needs a {role} in the prompt ({' and '.join(roles)}); "
                              f"the prompt names {named}")
         if not segmentation.results[index].found:
             raise NotGrounded(f"the {role} {segmentation.phrases[index].text!r} was not found in the image "

@@ -74,13 +74,15 @@ def draw_overlay(image: np.ndarray, segmentation: Segmentation) -> np.ndarray:
 
 
 def segment(image_data: bytes, prompt: str, backend_name: str = "auto", weights: str | None = None,
-            task: str | None = None, pictures: bool = True) -> dict:
+            task: str | None = None, pictures: bool = True, roles: list[str] | None = None) -> dict:
     """Segments an encoded image for `prompt`.
 
     Args:
-        task: when given, the label map is ordered for a core model of that task (label k =
-            the phrase filling the model's k-th object slot, see
+        roles: when given, the label map is ordered for a core model whose object slots take
+            these prompt roles (label k = the phrase filling the model's k-th slot, see
             :func:`cnfmp.segmenter.order_by_roles`) and the JSON gains ``"slots"``.
+        task: the same with the roles of that benchmark task (``task_roles`` in
+            prompts/vocabulary.json), when `roles` is not given.
         pictures: when False, ``mask_pngs`` and ``overlay_png`` are left empty (a server
             answering with JSON does not pay for encoding them).
 
@@ -88,15 +90,15 @@ def segment(image_data: bytes, prompt: str, backend_name: str = "auto", weights:
     "mask_pngs": [bytes] (one 0/255 mask per phrase), "overlay_png": bytes,
     "slot_names": [str] (phrases in slot order; all phrases when no task)}``.
     """
-    if task is not None:
-        task_roles(task)  # a task prompts cannot drive is refused before a backend loads
+    if roles is None and task is not None:
+        roles = task_roles(task)  # a task prompts cannot drive is refused before a backend loads
     image = decode_image(image_data)
     result = segment_array(image, prompt, backend(backend_name, weights))
     document = result.to_dict()
-    if task is None:
+    if roles is None:
         order, labels = list(range(len(result.phrases))), result.labels
     else:
-        order = order_by_roles(result, task)
+        order = order_by_roles(result, list(roles))
         labels = np.zeros_like(result.labels)
         for slot, index in enumerate(order, start=1):
             labels[result.labels == index + 1] = slot
