@@ -262,3 +262,21 @@ def test_bad_recordings_get_clear_errors_and_leave_nothing(recording, tmp_path):
     with pytest.raises(InputError, match="stays at 40 in every episode"):
         recorded.to_poses(episode, recorded.motion_layout("action", MOTION_NAMES))
     assert not glob.glob(out + "*")
+
+
+@pytest.mark.parametrize("roles, kept", [
+    (["target", "destination"], ["target", "destination"]),
+    (["unknown", "unknown"], []),  # objects named one by one (--objects): no roles
+    (["object", "object"], []),  # two slots one role: a prompt could not tell them apart
+    ([], []),
+])
+def test_only_roles_that_tell_the_slots_apart_go_into_the_model(roles, kept):
+    from cnfmp.core.configuration_cnfmp import CnfmpConfig
+    from cnfmp.core.training_cnfmp import fit_config_to_data
+
+    masks = np.zeros((1, 8, 8), np.uint8)
+    masks[0, :2], masks[0, -2:] = 1, 2
+    trajectory = np.tile([0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0, 1.0], (5, 1))
+    demos = core_data.Demonstrations("lab", 10.0, np.zeros((1, 8, 8, 3), np.uint8), masks, [["a", "b"]],
+                                     [trajectory], [-1], ["put a on b"], roles=[roles])
+    assert fit_config_to_data(CnfmpConfig(), demos).object_roles == kept

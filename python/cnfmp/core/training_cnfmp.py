@@ -31,10 +31,12 @@ def fit_config_to_data(config: CnfmpConfig, demos: core_data.Demonstrations) -> 
         raise InputError(f"masks use label {highest} but annotation.objects names only {slots} object(s)")
     present = np.stack([[(masks == k).any() for k in range(1, slots + 1)] for masks in demos.masks])
     fullest = max(range(len(demos)), key=lambda b: len(demos.objects[b]))
-    roles = demos.roles[fullest] if demos.roles else []
+    roles = list(demos.roles[fullest]) if demos.roles else []
+    # Roles order a prompt's phrases onto the slots only when each slot has its own.
+    usable = len(roles) == slots and len(set(roles)) == slots and "unknown" not in roles
     return dataclasses.replace(
         config.fitted_to(demos), num_objects=slots, object_names=demos.objects[fullest],
-        object_roles=list(roles) if len(roles) == slots else [],
+        object_roles=roles if usable else [],
         slot_can_be_absent=[bool(not present[:, k].all()) for k in range(slots)],
     )
 

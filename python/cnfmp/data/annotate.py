@@ -43,8 +43,8 @@ def annotate_image(image: np.ndarray, prompt: str, objects: list[str] | None, se
     if objects:
         # One call per named object: each name is one phrase, found or not on its own.
         parts = [segment(image, name, segmenter) for name in objects]
-        phrases = [(name, p.phrases[0].role if p.phrases[0].category else "unknown", p.results[0], p.probabilities[0])
-                   for name, p in zip(objects, parts)]
+        # Named one by one, the objects have no roles relative to each other.
+        phrases = [(name, "unknown", p.results[0], p.probabilities[0]) for name, p in zip(objects, parts)]
         order = list(range(len(phrases)))  # the user's order is the slot order
     else:
         found = segment(image, prompt, segmenter)
