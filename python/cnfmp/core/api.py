@@ -121,7 +121,9 @@ def describe(model_dir: str) -> str:
     c = model.config
     object_centric = isinstance(c, CnfmpConfig)
     # Prompts fill object slots; a model without objects can only be driven by masks.
-    roles = (phrases.vocabulary()["task_roles"].get(c.task) or list(c.object_roles) or None) if object_centric else None
+    # The roles recorded with the training data describe the model's own slots, so they win
+    # over the vocabulary's for a task of the same name.
+    roles = (list(c.object_roles) or phrases.vocabulary()["task_roles"].get(c.task)) if object_centric else None
     return json.dumps({
         "task": c.task, "type": c.model_type, "objects": list(c.object_names) if object_centric else [],
         "task_objects": (c.task_objects or c.num_objects) if object_centric else 0,

@@ -33,7 +33,8 @@ class CnfmpConfig(MotionConfig):
     object_names: list[str] = field(default_factory=list)
     #: The prompt role filling each slot (target, destination, ...), as `cnfmp dataset
     #: annotate` recorded them; lets prompts drive a model whose task the vocabulary's
-    #: task_roles does not list. Empty: the vocabulary's roles for the task, if any.
+    #: task_roles does not list (they win over the vocabulary's for a task of the same name).
+    #: Empty: the vocabulary's roles for the task, if any.
     object_roles: list[str] = field(default_factory=list)
     #: Whether each slot was ever empty in training (an empty slot is only accepted then).
     slot_can_be_absent: list[bool] = field(default_factory=list)
