@@ -429,6 +429,10 @@ fn a_lerobot_recording_is_annotated_trained_and_predicted() {
                 "--objects", arg(&scene.join("objects.json")), "--out", arg(&trajectory)]), "predict");
     let predicted = Trajectory::load(&trajectory).unwrap();
     assert!(predicted.frames.len() > 20);
+    // The same frames in the recording's own form: its names, a rotation vector, millimetres.
+    let recorded = &predicted.metadata["recorded"];
+    assert_eq!(recorded["names"], serde_json::json!(["ee.x", "ee.y", "ee.z", "ee.rx", "ee.ry", "ee.rz", "gripper.pos"]));
+    assert_eq!(recorded["values"].as_array().unwrap().len(), predicted.frames.len());
     // The annotation recorded each slot's prompt role, so a prompt drives the model too.
     let prompt = std::fs::read_to_string(scene.join("prompt.txt")).unwrap();
     let from_prompt = dir.path().join("from_prompt.json");

@@ -99,8 +99,15 @@ def test_motion_layouts_are_read_from_names():
     poses, scale = recorded.to_poses([np.array([[0, 0, 0, 0, 0, 0, 1, 20.0], [0, 0, 0, 0, 0, 0, 1, 80.0]])], quat)
     np.testing.assert_allclose(poses[0][:, 3:7], [[1, 0, 0, 0]] * 2)
     assert scale == (20.0, 80.0) and poses[0][:, 7].tolist() == [0.0, 1.0]
-    euler_pose, _ = recorded.to_poses([np.array([[0.5, 0, 0, np.pi / 2, 1, 2, 3]] * 2)], euler)
+    euler_values = np.array([[0.5, 0, 0, np.pi / 2, 1, 2, 3]] * 2)
+    euler_pose, _ = recorded.to_poses([euler_values], euler)
     np.testing.assert_allclose(euler_pose[0][0, 3:7], [np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)], atol=1e-9)
+    # And back: the recording's own form, dimension by dimension.
+    names, back = recorded.from_poses(euler_pose[0], euler, None)
+    assert names == ["gripper", "roll", "pitch", "yaw", "x", "y", "z"]
+    np.testing.assert_allclose(back, euler_values, atol=1e-9)
+    names, back = recorded.from_poses(poses[0], quat, scale)
+    assert names == ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper"] and back[:, 7].tolist() == [20.0, 80.0]
 
 
 @pytest.mark.parametrize("names, message", [
@@ -189,6 +196,17 @@ def test_training_reads_the_recording_aligned(annotated, tmp_path):
                                         demos.objects[0]))
     frames = prediction["frames"]
     assert abs(frames[-1]["t"] - json.loads(open(os.path.join(model_dir, "config.json")).read())["duration_s"]) < 0.2
+    # The prediction also comes back in the recording's own form: rotation vector, gripper in mm.
+    recorded_form = prediction["recorded"]
+    assert recorded_form["names"] == MOTION_NAMES and len(recorded_form["values"]) == len(frames)
+    values = np.asarray(recorded_form["values"])
+    np.testing.assert_allclose(values[:, :3], [f["position"] for f in frames], atol=1e-5)
+    between = geometry.Rotation.from_rotvec(values[:, 3:6]).inv() * geometry.to_rotation([f["orientation"] for f in frames])
+    assert between.magnitude().max() < 1e-4
+    assert np.abs(np.diff(values[:, 3:6], axis=0)).max() < 0.5  # continuous: no jump between equivalent vectors
+    np.testing.assert_allclose(values[:, 6], np.asarray([f["gripper"] for f in frames]) * (values[:, 6].max() / max(
+        f["gripper"] for f in frames)), atol=1e-3)
+    assert values[:, 6].max() > 1.5  # millimetres, not [0, 1]
     # The annotation's roles travel with the model: a prompt orders the segmenter's masks for it.
     roles = json.loads(api.describe(model_dir))["roles"]
     assert roles == ["target", "destination"]

@@ -112,6 +112,22 @@ pub struct Prediction {
     /// Stage timings (ms): decode_inputs, load_model (near zero once resident), infer_latents,
     /// decode_trajectory, total.
     pub timings_ms: serde_json::Map<String, serde_json::Value>,
+    /// The trajectory in the form the model's training data recorded it, for a model
+    /// trained on another form than x y z + quaternion + gripper in [0, 1].
+    #[serde(default)]
+    pub recorded: Option<RecordedMotion>,
+}
+
+/// A predicted trajectory in a recording's own form (`cnfmp.data.recorded`): the named
+/// dimensions in the recording's order, rotations as recorded (quaternion, rotation vector
+/// or Euler angles), the gripper in the recording's units.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct RecordedMotion {
+    /// The feature the training trajectories came from (`action` or `observation.state`).
+    pub source: String,
+    pub names: Vec<String>,
+    /// One row per frame of the trajectory, `names.len()` values each.
+    pub values: Vec<Vec<f64>>,
 }
 
 /// A loaded model, as `cnfmp.core.api.describe` reports it.

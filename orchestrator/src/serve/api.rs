@@ -162,6 +162,21 @@ pub struct TrajectoryResponse {
     /// request's k-th object), base64.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub masks_png_base64: Option<String>,
+    /// For a model trained on a recording in another form (a rotation vector or Euler
+    /// angles, a gripper in its own units): the same frames in that form.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recorded: Option<RecordedFrames>,
+}
+
+/// The trajectory in the form the model's training recording used.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct RecordedFrames {
+    /// The recording's feature (`action` or `observation.state`).
+    pub source: String,
+    /// Dimension names, in the recording's order, e.g. `["ee.x", "ee.y", "ee.z", "ee.rx", "ee.ry", "ee.rz", "gripper.pos"]`.
+    pub names: Vec<String>,
+    /// One row per frame (the frames of `frames`), one value per name.
+    pub values: Vec<Vec<f64>>,
 }
 
 /// One served model.

@@ -297,6 +297,7 @@ fn build_response(
         scene_psnr_db: finite(prediction.scene_psnr_db),
         timings_ms,
         masks_png_base64,
+        recorded: prediction.recorded.map(|r| RecordedFrames { source: r.source, names: r.names, values: r.values }),
     })
 }
 
@@ -594,7 +595,7 @@ async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
     paths(create_trajectory, health, list_models, metrics, openapi_json),
     components(schemas(
         TrajectoryJsonRequest, TrajectoryForm, TrajectoryResponse, Frame, ModelRef, DetectedObject, Confidence,
-        StageTimings, ModelList, ModelSummary, Health, ErrorResponse, ErrorDetail
+        StageTimings, RecordedFrames, ModelList, ModelSummary, Health, ErrorResponse, ErrorDetail
     ))
 )]
 pub struct ApiDoc;

@@ -64,7 +64,8 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
     "orientation", "gripper"}]}``, plus ``"model"``, ``"objects"`` (per slot: name, present,
     simplex weights, reconstruction MSE and PSNR as confidence, mask IoU; empty for the
     baselines, which have no objects), ``"scene_psnr_db"`` (null for models without a scene
-    field) and ``"timings_ms"``.
+    field) and ``"timings_ms"``; for a model trained on a recording in another form,
+    ``"recorded"``: the frames in that form (:func:`_recorded_form`).
     """
     started = time.perf_counter()
     image, labels = decode_image(image_png), decode_labels(masks_png)
@@ -98,8 +99,9 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
             "mask_iou": result["mask_iou"][slot],
         })
     seconds = result["seconds"]
+    recorded = _recorded_form(c, traj)
     return json.dumps({
-        "fps": c.output_fps, "frames": frames,
+        "fps": c.output_fps, "frames": frames, **({"recorded": recorded} if recorded else {}),
         "model": {"dir": os.path.abspath(model_dir), "task": c.task, "type": c.model_type},
         "objects": slots, "scene_psnr_db": result.get("scene_psnr_db"),
         # load_model is near zero once the model is resident (it then only checks file times).
@@ -108,6 +110,21 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
                        "decode_trajectory": 1000 * seconds["decode"],
                        "total": 1000 * (time.perf_counter() - started)},
     })
+
+
+def _recorded_form(config, trajectory: dict) -> dict | None:
+    """The predicted trajectory in the form the training data recorded it
+    (``MotionConfig.recorded_motion``): ``{"source", "names", "values": [[...] per frame]}``,
+    or None for a model trained on poses."""
+    if not config.recorded_motion:
+        return None
+    from cnfmp.data import recorded
+
+    spec = config.recorded_motion
+    layout = recorded.motion_layout(spec["source"], spec["names"])
+    poses = np.concatenate([trajectory["position"], trajectory["orientation"], trajectory["gripper"][:, None]], axis=1)
+    names, values = recorded.from_poses(poses, layout, spec.get("gripper_range"))
+    return {"source": spec["source"], "names": names, "values": values.round(6).tolist()}
 
 
 def describe(model_dir: str) -> str:

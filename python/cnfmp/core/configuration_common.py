@@ -43,6 +43,11 @@ class MotionConfig(JsonConfig):
     #: work in these normalised units.
     position_mean: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     position_std: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0])
+    #: How the recording's motion vector maps onto the pose the model learns (see
+    #: :mod:`cnfmp.data.recorded`): ``{"source", "names", "gripper_range": [low, high] or
+    #: null}``. Predictions also come back in that form (``"recorded"`` in the trajectory
+    #: JSON). Empty when the recording is the pose form itself (x y z qw qx qy qz gripper).
+    recorded_motion: dict = field(default_factory=dict)
 
     # ---- motion encoding ----
     #: How the generator's three rotation outputs encode an orientation relative to
@@ -83,7 +88,7 @@ class MotionConfig(JsonConfig):
         positions = np.concatenate([traj[:, :3] for traj in demos.trajectories])
         longest = max(len(traj) for traj in demos.trajectories)
         return dataclasses.replace(
-            self, task=demos.task, duration_s=(longest - 1) / demos.fps,
+            self, task=demos.task, duration_s=(longest - 1) / demos.fps, recorded_motion=demos.recorded_motion(),
             reference_quat=[float(v) for v in demos.trajectories[0][0, 3:7]],
             position_mean=[float(v) for v in positions.mean(axis=0)],
             position_std=[float(max(v, 1e-3)) for v in positions.std(axis=0)],

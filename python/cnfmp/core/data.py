@@ -14,9 +14,14 @@ import dataclasses
 import json
 from dataclasses import dataclass
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from cnfmp.errors import InputError
+
+if TYPE_CHECKING:
+    from cnfmp.data.recorded import MotionLayout
 
 
 @dataclass
@@ -34,7 +39,8 @@ class Demonstrations:
         seeds: scene seeds (-1 where the dataset does not record them).
         prompts: the language instruction of each demonstration.
         camera: the camera feature the images come from.
-        motion: how the trajectories were read (the recorded layout, for the model card).
+        layout: how the trajectories were read (None: given as poses).
+        gripper_range: the recorded gripper values read as 0 and 1 (None: kept as recorded).
         roles: per demonstration, the prompt role of each object in label order, where
             `cnfmp dataset annotate` recorded them (else empty).
     """
@@ -48,11 +54,30 @@ class Demonstrations:
     seeds: list[int]
     prompts: list[str]
     camera: str = ""
-    motion: str = ""
+    layout: MotionLayout | None = None
+    gripper_range: tuple[float, float] | None = None
     roles: list[list[str]] = dataclasses.field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.trajectories)
+
+    @property
+    def motion(self) -> str:
+        """How the trajectories were read, for logs and the model card."""
+        if self.layout is None:
+            return "given as poses"
+        low_high = "" if self.gripper_range is None else f"; gripper {self.gripper_range[0]:g}..{self.gripper_range[1]:g} read as 0..1"
+        return self.layout.describe() + low_high
+
+    def recorded_motion(self) -> dict:
+        """The layout as a model config keeps it (``MotionConfig.recorded_motion``); empty
+        when the recording is the pose form itself."""
+        from cnfmp.data.generate import STATE_NAMES
+
+        if self.layout is None or (list(self.layout.names) == STATE_NAMES and self.gripper_range is None):
+            return {}
+        return {"source": self.layout.source, "names": list(self.layout.names),
+                "gripper_range": None if self.gripper_range is None else list(self.gripper_range)}
 
 
 @dataclass(frozen=True)
@@ -130,9 +155,8 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
     if len(tasks) > 1:
         raise InputError(f"{dataset_dir}: episodes of several tasks ({', '.join(sorted(tasks))}); train one task per model")
     trajectories, scale = recorded.to_poses(episodes, layout)
-    motion_text = layout.describe() + ("" if scale is None else f"; gripper {scale[0]:g}..{scale[1]:g} read as 0..1")
     return Demonstrations(tasks.pop(), float(dataset.fps), np.stack(images), np.stack(masks), objects,
-                          trajectories, seeds, prompts, camera, motion_text, roles)
+                          trajectories, seeds, prompts, camera, layout, scale, roles)
 
 
 def task_object_labels(labels: np.ndarray, count: int) -> np.ndarray:

@@ -146,6 +146,37 @@ def to_poses(episodes: list[np.ndarray], layout: MotionLayout) -> tuple[list[np.
     return poses, scale
 
 
+def from_poses(poses: np.ndarray, layout: MotionLayout, gripper_range: tuple[float, float] | None) -> tuple[list[str], np.ndarray]:
+    """(T, 8) ``x y z qw qx qy qz gripper`` poses back in the recording's form: the names of
+    the dimensions the layout uses, in the recording's order, and (T, len(names)) values
+    (rotation as recorded, gripper in the recording's units; the inverse of :func:`to_poses`)."""
+    from cnfmp import geometry
+
+    poses = np.asarray(poses, np.float64)
+    columns = dict(zip(layout.position, poses[:, :3].T))
+    if layout.rotation == "quaternion":
+        rotation = poses[:, 3:7]
+    elif layout.rotation == "rotvec":
+        rotation = geometry.to_rotation(poses[:, 3:7]).as_rotvec()
+        # Near half a turn, v and v (1 - 2 pi / |v|) are the same rotation: keep the one
+        # closest to the previous frame's, so a robot interpolating the values never flips.
+        for k in range(1, len(rotation)):
+            angle = np.linalg.norm(rotation[k])
+            if angle > 1e-9:
+                other = rotation[k] * (1 - 2 * np.pi / angle)
+                if np.linalg.norm(other - rotation[k - 1]) < np.linalg.norm(rotation[k] - rotation[k - 1]):
+                    rotation[k] = other
+    else:
+        rotation = np.unwrap(geometry.to_rotation(poses[:, 3:7]).as_euler("xyz"), axis=0)
+    columns.update(zip(layout.rotation_indices, rotation.T))
+    gripper = poses[:, 7]
+    if gripper_range is not None:
+        gripper = gripper_range[0] + gripper * (gripper_range[1] - gripper_range[0])
+    columns[layout.gripper] = gripper
+    order = sorted(columns)
+    return [layout.names[k] for k in order], np.stack([columns[k] for k in order], axis=1)
+
+
 def camera_keys(features: dict) -> list[str]:
     """The dataset's camera features (``image`` or ``video``), in the dataset's order."""
     return [key for key, spec in features.items() if spec.get("dtype") in ("image", "video")]
