@@ -262,6 +262,14 @@ def test_bad_recordings_get_clear_errors_and_leave_nothing(recording, tmp_path):
     with pytest.raises(InputError, match=f"file\\(s\\) of the dataset are missing, e.g. {video}"):
         annotate.annotate(broken, out, camera="observation.images.front", progress=False)
     assert not glob.glob(out + "*"), "nothing is left behind by a refused annotation"
+    # An interrupted run resumes only with the same command.
+    os.makedirs(out + ".staging")
+    with open(os.path.join(out + ".staging", "command.json"), "w") as handle:
+        json.dump({"dataset": os.path.abspath(source), "camera": "observation.images.front", "objects": ["unicorn"],
+                   "backend": "auto", "weights": None, "masks_dir": None}, handle)
+    with pytest.raises(InputError, match="another annotate command \\(it differs in: objects\\)"):
+        annotate.annotate(source, out, camera="observation.images.front", progress=False)
+    shutil.rmtree(out + ".staging")
 
     # No task prompt, no --objects; and a gripper in millimetres that never moves.
     spec = {"dtype": "float32", "shape": (7,), "names": MOTION_NAMES}

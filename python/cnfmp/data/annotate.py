@@ -31,6 +31,8 @@ from cnfmp.errors import InputError
 #: Object slots follow these prompt roles, in this order (then order of mention).
 ROLE_ORDER = ("target", "destination", "obstacle", "object", "unknown")
 ANNOTATION_DIR = "annotation"
+#: The features annotation adds.
+ANNOTATION_FEATURES = ("annotation.masks", "annotation.objects", "annotation.scene")
 _THUMB_WIDTH = 200
 
 
@@ -86,6 +88,20 @@ def _hand_made(path: str, shape: tuple[int, int], objects: list[str] | None, pro
         roles += ["unknown"] * (count - len(roles))
     return {"labels": labels, "objects": names[:count], "roles": roles[:count], "scores": [1.0] * count,
             "missing": [], "hand_made": True}
+
+
+def _check_staging(staging: str, command: dict) -> None:
+    """Refuses to resume from `staging` when another command made it (other objects, camera,
+    segmenter...): its cached masks would not be what this command asks for."""
+    path = os.path.join(staging, "command.json")
+    if not os.path.isfile(path):
+        return
+    with open(path) as handle:
+        before = json.load(handle)
+    if before != command:
+        changed = ", ".join(sorted(k for k in command if before.get(k) != command[k]))
+        raise InputError(f"{staging} holds the work of another annotate command (it differs in: {changed}); "
+                         "rerun that command to finish it, or remove the folder to start over")
 
 
 def _contact_sheet(thumbs: list[tuple[np.ndarray, np.ndarray, str, bool]]) -> np.ndarray:
@@ -148,6 +164,10 @@ def annotate(dataset_dir: str, out_dir: str, camera: str | None = None, objects:
     features = dataset.meta.features
     if "annotation.masks" in features:
         raise InputError(f"{dataset_dir} already has coarse masks (annotation.masks); it trains as it is")
+    present = sorted(name for name in ANNOTATION_FEATURES if name in features)
+    if present:
+        raise InputError(f"{dataset_dir} already has {', '.join(present)} but no masks; remove them "
+                         "(lerobot's dataset_tools.remove_feature) before annotating")
     camera = choose_camera(features, camera, None)
     if objects is None:
         prompts = [str(t) for t in dataset.meta.tasks.index]
@@ -156,6 +176,9 @@ def annotate(dataset_dir: str, out_dir: str, camera: str | None = None, objects:
                              "name them with --objects, e.g. --objects \"red cube, paper\"")
     task = task or re.sub(r"[^A-Za-z0-9_.-]+", "_", os.path.basename(os.path.abspath(dataset_dir))).strip("_") or "task"
     staging = out_dir.rstrip("/") + ".staging"  # made when the first result is kept
+    command = {"dataset": os.path.abspath(dataset_dir), "camera": camera, "objects": objects,
+               "backend": backend_name, "weights": weights, "masks_dir": masks_dir}
+    _check_staging(staging, command)
     segmenter = None
     starts = dataset.meta.episodes["dataset_from_index"]
     results, thumbs, resumed = {}, [], 0
@@ -179,7 +202,10 @@ def annotate(dataset_dir: str, out_dir: str, camera: str | None = None, objects:
                 segmenter = segmenter or backend(backend_name, weights)
                 result = annotate_image(image, prompt, objects, segmenter)
             meta = {k: v for k, v in result.items() if k != "labels"}
-            os.makedirs(staging, exist_ok=True)
+            if not os.path.isdir(staging):
+                os.makedirs(staging)
+                with open(os.path.join(staging, "command.json"), "w") as handle:
+                    json.dump(command, handle)
             np.savez(cached + ".tmp.npz", labels=result["labels"], meta=json.dumps(meta))
             os.replace(cached + ".tmp.npz", cached)
         result["prompt"] = prompt
