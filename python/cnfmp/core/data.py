@@ -113,7 +113,7 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
     # Imported here: the dataset readers pull in the simulator and scipy, which inference
     # (scene_inputs, a cold `cnfmp predict`) never needs.
     from cnfmp.data import recorded
-    from cnfmp.data.lerobot_io import first_frame, open_dataset
+    from cnfmp.data.lerobot_io import annotated_scene, first_frame, open_dataset
 
     dataset = open_dataset(dataset_dir)
     features = dataset.meta.features
@@ -123,8 +123,7 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
         raise InputError(f"{dataset_dir}: the dataset lacks feature(s) {', '.join(missing)}{hint}")
     if dataset.num_episodes == 0:
         raise InputError(f"{dataset_dir}: the dataset has no episodes")
-    first_scene = json.loads(dataset.hf_dataset[0]["annotation.scene"] or "{}") if "annotation.scene" in features else {}
-    camera = recorded.choose_camera(features, options.camera, first_scene.get("camera"))
+    camera = recorded.choose_camera(features, options.camera, annotated_scene(dataset).get("camera"))
     names = options.motion_names or features[options.motion_from].get("names")
     layout = recorded.motion_layout(options.motion_from, names)
     state_names = features.get("observation.state", {}).get("names")

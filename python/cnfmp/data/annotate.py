@@ -108,8 +108,9 @@ def _contact_sheet(thumbs: list[tuple[np.ndarray, np.ndarray, str, bool]]) -> np
     """One image of (image, labels, caption, ok) thumbnails, six to a row."""
     import cv2
 
-    palette = np.array([(0, 0, 0), (230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180),
-                        (70, 240, 240)], np.float32)
+    from cnfmp.segmenter.api import OVERLAY_COLOURS
+
+    palette = np.array([(0, 0, 0), *OVERLAY_COLOURS], np.float32)  # label 0 (background) is never tinted
     tiles = []
     for image, labels, caption, ok in thumbs:
         height = max(1, round(image.shape[0] * _THUMB_WIDTH / image.shape[1]))

@@ -129,6 +129,14 @@ def open_dataset(dataset_dir: str):
         raise InputError(f"{dataset_dir}: lerobot cannot read this dataset: {err}") from err
 
 
+def annotated_scene(dataset) -> dict:
+    """The ``annotation.scene`` JSON of the dataset's first frame (task, seed, camera, roles as
+    the writer recorded them); empty when the dataset has none."""
+    if "annotation.scene" not in dataset.meta.features:
+        return {}
+    return json.loads(dataset.hf_dataset[0]["annotation.scene"] or "{}")
+
+
 def _missing_files(dataset_dir: str) -> list[str]:
     """The data and video files the dataset's episode index lists that are not on disk."""
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
@@ -265,8 +273,7 @@ def inspect(dataset_dir: str) -> str:
     checks.append({"name": "format version", "ok": info.get("codebase_version") == "v3.0",
                    "detail": f"codebase_version {info.get('codebase_version')} (cnfmp writes v3.0)"})
     cameras = recorded.camera_keys(features)
-    first_scene = json.loads(dataset.hf_dataset[0]["annotation.scene"] or "{}") if "annotation.scene" in features else {}
-    camera = first_scene.get("camera") or (IMAGE_KEY if IMAGE_KEY in cameras else (cameras or [None])[0])
+    camera = annotated_scene(dataset).get("camera") or (IMAGE_KEY if IMAGE_KEY in cameras else (cameras or [None])[0])
     needed = {"action", "annotation.masks", "annotation.objects"}
     missing = sorted(needed - set(features)) + ([] if camera else ["a camera (image or video feature)"])
     checks.append({"name": "cnfmp features", "ok": not missing,

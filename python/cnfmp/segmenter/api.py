@@ -18,8 +18,8 @@ from cnfmp.segmenter.backends import load_backend
 from cnfmp.segmenter.base import Backend
 
 _BACKENDS: dict[tuple[str, str | None], Backend] = {}
-#: Overlay colours (RGB) per phrase, cycled.
-_PALETTE = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240)]
+#: Overlay colours (RGB) per phrase, cycled (also annotation's contact sheet).
+OVERLAY_COLOURS = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240)]
 #: Overlays are drawn at least this large (px), so the labels are legible.
 _OVERLAY_SIDE = 512
 
@@ -53,7 +53,7 @@ def draw_overlay(image: np.ndarray, segmentation: Segmentation) -> np.ndarray:
     big = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST).astype(np.float32)
     lines = []
     for k, (phrase, result) in enumerate(zip(segmentation.phrases, segmentation.results)):
-        colour = _PALETTE[k % len(_PALETTE)]
+        colour = OVERLAY_COLOURS[k % len(OVERLAY_COLOURS)]
         if not result.found:
             lines.append((f"{k + 1}: {phrase.text} - not found ({result.score:.2f})", colour))
             continue
@@ -65,7 +65,7 @@ def draw_overlay(image: np.ndarray, segmentation: Segmentation) -> np.ndarray:
         if result.found:
             mask = cv2.resize(result.mask.astype(np.uint8), None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
             contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-            cv2.drawContours(big, contours, -1, _PALETTE[k % len(_PALETTE)], 2)
+            cv2.drawContours(big, contours, -1, OVERLAY_COLOURS[k % len(OVERLAY_COLOURS)], 2)
     for row, (text, colour) in enumerate(lines):
         origin = (8, 22 + 22 * row)
         cv2.putText(big, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 3, cv2.LINE_AA)
