@@ -1,6 +1,7 @@
 //! End-to-end tests of `cnfmp segment` and `cnfmp predict --prompt` through the real binary,
 //! with the shipped film segmenter: a rendered held-out scene is segmented from its own prompt
-//! and matches the simulator's masks; a prompt drives a (tiny) core model; bad input exits 2.
+//! and matches the simulator's masks; many scenes are segmented in one process (`--scenes`); a
+//! prompt drives a (tiny) core model; bad input exits 2.
 
 use std::path::Path;
 use std::process::Output;
@@ -90,6 +91,64 @@ fn segment_a_held_out_scene_from_its_prompt() {
     let output = cnfmp(&["segment", "--image", arg(&grey), "--prompt", "the red ball", "--out", arg(&bad)]);
     assert!(output.status.success(), "{}", stderr(&output));
     assert!(stderr(&output).contains("nothing the prompt names was found"), "{}", stderr(&output));
+}
+
+#[test]
+fn segment_many_scenes_in_one_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    let prompts: Vec<String> = [1_000_010u64, 1_000_011]
+        .iter()
+        .map(|seed| render("language_pick_place", *seed, &scenes.join(format!("s{seed}")))["prompt"].as_str().unwrap().to_owned())
+        .collect();
+    // A scene whose image is not one: reported, and the others go on.
+    std::fs::create_dir_all(scenes.join("bad")).unwrap();
+    std::fs::write(scenes.join("bad/image.png"), "not a png").unwrap();
+    std::fs::write(scenes.join("bad/prompt.txt"), "put the red cube on the plate\n").unwrap();
+    let out = dir.path().join("segmented");
+    let output = cnfmp(&["segment", "--scenes", arg(&scenes), "--out", arg(&out)]);
+    assert_bad_input(&output, "1 of 3 scenes were not segmented (first bad:");
+    assert!(String::from_utf8_lossy(&output.stdout).contains("2 of 3 scenes segmented"), "{}", String::from_utf8_lossy(&output.stdout));
+    let read = |path: &Path| -> Value { serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap() };
+    for (seed, prompt) in [1_000_010u64, 1_000_011].iter().zip(&prompts) {
+        let scene = out.join(format!("s{seed}"));
+        for name in ["segmentation.json", "masks.png", "objects.json", "overlay.png", "mask_1.png", "mask_2.png"] {
+            assert!(scene.join(name).is_file(), "{name} written for s{seed}");
+        }
+        let objects = read(&scene.join("objects.json"));
+        assert_eq!(objects["prompt"].as_str(), Some(prompt.as_str()), "the prompt is the one objects.json of the render holds");
+        let listed = objects["objects"].as_array().unwrap().len();
+        let mut labels: Vec<u8> = read_label_map(&scene.join("masks.png")).unwrap().pixels;
+        labels.sort_unstable();
+        labels.dedup();
+        assert_eq!(labels, (0..=listed as u8).collect::<Vec<_>>(), "masks.png of s{seed} holds the labels objects.json lists");
+    }
+    assert!(!out.join("bad").exists());
+    let summary = read(&out.join("summary.json"));
+    assert_eq!((summary["segmented"].as_u64(), summary["failed"].as_u64()), (Some(2), Some(1)), "{summary}");
+    assert_eq!(summary["backend"], "film");
+    assert!(summary["startup_s"].as_f64().unwrap() > 0.0 && summary["latency_ms_p50"].as_f64().unwrap() > 0.0, "{summary}");
+    let per_scene = summary["per_scene"].as_array().unwrap();
+    assert_eq!(per_scene[0]["name"], "bad");
+    assert_eq!(per_scene[0]["ok"], false);
+    assert!(per_scene[0]["error"].as_str().unwrap().contains("not an image"), "{summary}");
+    for good in &per_scene[1..] {
+        assert_eq!((good["ok"].as_bool(), good["found"].as_u64()), (Some(true), Some(2)), "{summary}");
+    }
+    let staging_left = std::fs::read_dir(dir.path()).unwrap().filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().starts_with('.')).count();
+    assert_eq!(staging_left, 0, "no staging directory is left beside the output");
+
+    // Refused before any work: a scene without a prompt, --scenes with --image, an output that exists.
+    std::fs::create_dir_all(scenes.join("silent")).unwrap();
+    std::fs::copy(scenes.join("s1000010/image.png"), scenes.join("silent/image.png")).unwrap();
+    let other = dir.path().join("other");
+    assert_bad_input(&cnfmp(&["segment", "--scenes", arg(&scenes), "--out", arg(&other)]), "silent has no prompt");
+    let output = cnfmp(&["segment", "--scenes", arg(&scenes), "--image", arg(&scenes.join("silent/image.png")), "--out", arg(&other)]);
+    assert_eq!(output.status.code(), Some(2), "{}", stderr(&output));
+    assert!(stderr(&output).contains("cannot be used with"), "{}", stderr(&output));
+    std::fs::remove_dir_all(scenes.join("silent")).unwrap();
+    assert_bad_input(&cnfmp(&["segment", "--scenes", arg(&scenes), "--out", arg(&out)]), "already exists");
+    assert!(!other.exists());
 }
 
 #[test]

@@ -11,16 +11,13 @@ use segmenter_bridge::{Bridge, ObjectEstimate, Prediction, Segmentation};
 use serde::Serialize;
 use serde_json::{Map, Value};
 
-use super::print_stdout;
-use super::scenes::{ObjectNames, SUMMARY_FILE, SceneInput, SceneObjects, list_scenes};
+use super::scenes::{BatchTimings, Needs, ObjectNames, SUMMARY_FILE, SceneInput, SceneObjects, end_batch, for_each_scene, list_scenes};
 use crate::segmentation::{BackendArgs, describe, prompt_roles, run_segmenter};
 use super::shared::trajectory_of;
 use crate::files::read_bytes;
 use crate::model_dir::model_task;
-use super::stats::quantile;
 use crate::failure::Failure;
 use crate::files::{require_new_or_empty_dir, write_atomically};
-use crate::progress::Progress;
 use crate::scene_masks::{self, CoarseMasks};
 use crate::trajectory::Trajectory;
 
@@ -177,38 +174,9 @@ struct ScenesSummary {
     scenes: usize,
     predicted: usize,
     failed: usize,
-    /// From the command's start to the last scene written (s).
-    wall_time_s: f64,
-    /// Start-up paid once (s): listing the scenes, starting the interpreter, the imports and
-    /// the model load, i.e. the time before the first prediction plus its latency less the warm
-    /// median.
-    startup_s: f64,
-    /// Over every scene but the first (which pays the start-up).
-    latency_ms_p50: f64,
-    latency_ms_p95: f64,
+    #[serde(flatten)]
+    timings: BatchTimings,
     per_scene: Vec<SceneReport>,
-}
-
-impl ScenesSummary {
-    /// The summary of a run that started at `started` and began predicting at `loop_started`.
-    /// The first prediction pays the start-up; the scenes refused before reaching the model
-    /// say nothing about its speed.
-    fn new(model: &Path, scenes: usize, reports: Vec<SceneReport>, started: Instant, loop_started: Instant) -> Self {
-        let latencies: Vec<f64> = reports.iter().filter(|r| r.predicted).map(|r| r.latency_ms).collect();
-        let warm = &latencies[usize::from(latencies.len() > 1)..];
-        let warm_p50 = quantile(warm, 0.5);
-        ScenesSummary {
-            model: model.display().to_string(),
-            scenes,
-            predicted: latencies.len(),
-            failed: reports.len() - latencies.len(),
-            wall_time_s: started.elapsed().as_secs_f64(),
-            startup_s: latencies.first().map_or(f64::NAN, |first| (loop_started - started).as_secs_f64() + (first - warm_p50).max(0.0) / 1e3),
-            latency_ms_p50: warm_p50,
-            latency_ms_p95: quantile(warm, 0.95),
-            per_scene: reports,
-        }
-    }
 }
 
 /// `cnfmp predict --scenes`: every scene of `scenes` in this one process, a trajectory file
@@ -216,69 +184,50 @@ impl ScenesSummary {
 /// skipped; the command then exits with code 2 after the others are done.
 fn predict_scenes(model: &Path, scenes: &Path, backend: &BackendArgs, out: &Path) -> Result<(), Failure> {
     let started = Instant::now();
-    let scenes = list_scenes(scenes)?;
+    let scenes = list_scenes(scenes, Needs::MasksOrPrompt)?;
     model_task(model)?;
     require_new_or_empty_dir(out)?;
     fs::create_dir_all(out).map_err(|err| Failure::BadInput(format!("cannot create {}: {err}", out.display())))?;
     let bridge = Bridge::start_default()?;
     let loop_started = Instant::now();
-    let mut progress = Progress::new("predict", scenes.len() as u64, 0);
-    let mut reports = Vec::with_capacity(scenes.len());
-    let mut outcome = Ok(());
-    for scene in &scenes {
-        let call = Instant::now();
-        let predicted = predict_scene(bridge, model, scene, backend).and_then(|done| {
-            write_atomically(&out.join(format!("{}.json", scene.name)), done.trajectory.to_json_string().as_bytes())?;
-            Ok(done)
-        });
-        let latency_ms = call.elapsed().as_secs_f64() * 1e3;
-        reports.push(match predicted {
-            Ok(done) => SceneReport {
-                name: scene.name.clone(),
-                predicted: true,
-                error: None,
-                latency_ms,
-                frames: Some(done.trajectory.frames.len()),
-                objects: done.prediction.objects,
-                timings_ms: done.prediction.timings_ms,
-            },
-            Err(Failure::BadInput(message)) => {
-                progress.note(&format!("{}: not predicted: {message}", scene.name));
-                SceneReport { name: scene.name.clone(), predicted: false, error: Some(message), latency_ms, frames: None, objects: Vec::new(), timings_ms: Map::new() }
+    let (outcomes, outcome) = for_each_scene("predict", "not predicted", &scenes, |scene| {
+        let done = predict_scene(bridge, model, scene, backend)?;
+        write_atomically(&out.join(format!("{}.json", scene.name)), done.trajectory.to_json_string().as_bytes())?;
+        Ok(done)
+    });
+    let latencies: Vec<f64> = outcomes.iter().filter(|o| o.result.is_ok()).map(|o| o.latency_ms).collect();
+    let timings = BatchTimings::new(&latencies, started, loop_started);
+    let reports: Vec<SceneReport> = outcomes
+        .into_iter()
+        .map(|o| {
+            let name = o.scene.name.clone();
+            match o.result {
+                Ok(done) => SceneReport {
+                    name,
+                    predicted: true,
+                    error: None,
+                    latency_ms: o.latency_ms,
+                    frames: Some(done.trajectory.frames.len()),
+                    objects: done.prediction.objects,
+                    timings_ms: done.prediction.timings_ms,
+                },
+                Err(message) => {
+                    SceneReport { name, predicted: false, error: Some(message), latency_ms: o.latency_ms, frames: None, objects: Vec::new(), timings_ms: Map::new() }
+                }
             }
-            Err(failure) => {
-                // The environment broke (not the scene): stop, keeping what is written.
-                outcome = Err(failure);
-                break;
-            }
-        });
-        progress.advance(1);
-    }
-    progress.finish();
-    let summary = ScenesSummary::new(model, scenes.len(), reports, started, loop_started);
+        })
+        .collect();
+    let summary = ScenesSummary {
+        model: model.display().to_string(),
+        scenes: scenes.len(),
+        predicted: latencies.len(),
+        failed: reports.len() - latencies.len(),
+        timings,
+        per_scene: reports,
+    };
     let text = serde_json::to_string_pretty(&summary).expect("summary serialises");
     write_atomically(&out.join(SUMMARY_FILE), format!("{text}\n").as_bytes())?;
     outcome?;
-    print_stdout(&format!(
-        "{}: {} of {} scenes predicted in {:.1} s (start-up {:.1} s, then p50 {:.0} ms / p95 {:.0} ms per scene); trajectories and {SUMMARY_FILE} in {}",
-        summary.model,
-        summary.predicted,
-        summary.scenes,
-        summary.wall_time_s,
-        summary.startup_s,
-        summary.latency_ms_p50,
-        summary.latency_ms_p95,
-        out.display()
-    ))?;
-    match summary.per_scene.iter().find(|r| !r.predicted) {
-        None => Ok(()),
-        Some(first) => Err(Failure::BadInput(format!(
-            "{} of {} scenes were not predicted (first {}: {}); see {}",
-            summary.failed,
-            summary.scenes,
-            first.name,
-            first.error.as_deref().unwrap_or("?"),
-            out.join(SUMMARY_FILE).display()
-        ))),
-    }
+    let errors: Vec<(&str, Option<&str>)> = summary.per_scene.iter().map(|r| (r.name.as_str(), r.error.as_deref())).collect();
+    end_batch(&summary.model, "predicted", "trajectories", out, &summary.timings, &errors)
 }

@@ -2,13 +2,16 @@
 //! command line, and the film backend's training and held-out evaluation.
 //!
 //! The numerics run in Python (`cnfmp.segmenter`) through the bridge; this module checks
-//! arguments before the interpreter starts and writes outputs atomically.
+//! arguments before the interpreter starts and writes outputs atomically. `--scenes`
+//! segments many scenes in one process, the segmenter loaded once.
 
 use std::fs;
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use clap::{Args, Subcommand};
-use segmenter_bridge::{Bridge, SegmenterTrainRequest};
+use segmenter_bridge::{Bridge, SegmenterTrainRequest, Segmentation};
+use serde::Serialize;
 
 use crate::seeds::{first_heldout_seed, heldout_seed_range};
 use super::shared::command_line;
@@ -16,19 +19,28 @@ use crate::model_dir::check_training_outputs;
 use crate::segmentation::{BackendArgs, describe, run_segmenter};
 use super::print_stdout;
 use crate::failure::Failure;
-use crate::files::{write_atomically, write_directory_atomically};
+use crate::files::{StagedDirectory, write_atomically, write_directory_atomically};
+use super::scenes::{BatchTimings, Needs, SUMMARY_FILE, SceneObjects, end_batch, for_each_scene, list_scenes};
 
 #[derive(Debug, Args)]
 pub struct SegmentArgs {
     /// Scene image (PNG or JPEG).
-    #[arg(long)]
-    image: PathBuf,
+    #[arg(long, required_unless_present = "scenes")]
+    image: Option<PathBuf>,
     /// What to find, e.g. "put the red ball in the box".
-    #[arg(long)]
-    prompt: String,
+    #[arg(long, required_unless_present = "scenes")]
+    prompt: Option<String>,
+    /// Many scenes in one call, the segmenter loaded once: a directory of scene folders (each
+    /// with image.png or .jpg and prompt.txt or a "prompt" in objects.json: what `cnfmp sim
+    /// render` writes), or a JSON lines file, one scene per line: {"name": ..., "image": PATH,
+    /// "prompt": TEXT} (paths relative to the file). --out then holds a folder per scene and
+    /// summary.json.
+    #[arg(long, conflicts_with_all = ["image", "prompt"])]
+    scenes: Option<PathBuf>,
     /// Output directory (created; must not exist or be empty): segmentation.json, masks.png
     /// (label map) + objects.json (what `cnfmp predict --masks/--objects` reads),
-    /// mask_<k>.png per phrase, overlay.png.
+    /// mask_<k>.png per phrase, overlay.png; with --scenes, <name>/ holding those per scene
+    /// and summary.json.
     #[arg(long)]
     out: PathBuf,
     #[command(flatten)]
@@ -86,21 +98,15 @@ pub(crate) fn read_image(path: &Path) -> Result<Vec<u8>, Failure> {
 }
 
 pub fn segment(args: SegmentArgs) -> Result<(), Failure> {
-    let image = read_image(&args.image)?;
+    let (image, prompt) = match (args.image, args.prompt, args.scenes) {
+        (None, None, Some(scenes)) => return segment_scenes(&scenes, &args.backend, &args.out),
+        (Some(image), Some(prompt), None) => (image, prompt),
+        _ => return Err(Failure::BadInput("give --image with --prompt, or --scenes".into())),
+    };
+    let image = read_image(&image)?;
     let bridge = Bridge::start_default()?;
-    let result = run_segmenter(bridge, image, &args.prompt, &args.backend, None, true)?;
-    let document = serde_json::to_string_pretty(&result.document).expect("segmentation serialises");
-    let objects = serde_json::json!({"prompt": args.prompt, "objects": result.slot_names});
-    let mut files = vec![
-        ("segmentation.json".to_owned(), format!("{document}\n").into_bytes()),
-        ("masks.png".to_owned(), result.labels_png.clone()),
-        ("objects.json".to_owned(), format!("{}\n", serde_json::to_string_pretty(&objects).expect("serialises")).into_bytes()),
-        ("overlay.png".to_owned(), result.overlay_png.clone()),
-    ];
-    for (k, mask) in result.mask_pngs.iter().enumerate() {
-        files.push((format!("mask_{}.png", k + 1), mask.clone()));
-    }
-    write_directory_atomically(&args.out, &files)?;
+    let result = run_segmenter(bridge, image, &prompt, &args.backend, None, true)?;
+    write_directory_atomically(&args.out, &output_files(&prompt, &result))?;
     let d = &result.document;
     eprintln!(
         "{}: {} of {} phrase(s) found by {} in {:.0} ms",
@@ -115,6 +121,112 @@ pub fn segment(args: SegmentArgs) -> Result<(), Failure> {
         eprintln!("nothing the prompt names was found in the image");
     }
     Ok(())
+}
+
+/// The files of one segmented scene (name, contents): segmentation.json, masks.png,
+/// objects.json, overlay.png and mask_<k>.png per phrase.
+fn output_files(prompt: &str, result: &Segmentation) -> Vec<(String, Vec<u8>)> {
+    let document = serde_json::to_string_pretty(&result.document).expect("segmentation serialises");
+    let objects = serde_json::json!({"prompt": prompt, "objects": result.slot_names});
+    let mut files = vec![
+        ("segmentation.json".to_owned(), format!("{document}\n").into_bytes()),
+        ("masks.png".to_owned(), result.labels_png.clone()),
+        ("objects.json".to_owned(), format!("{}\n", serde_json::to_string_pretty(&objects).expect("serialises")).into_bytes()),
+        ("overlay.png".to_owned(), result.overlay_png.clone()),
+    ];
+    for (k, mask) in result.mask_pngs.iter().enumerate() {
+        files.push((format!("mask_{}.png", k + 1), mask.clone()));
+    }
+    files
+}
+
+/// One scene of a `cnfmp segment --scenes` call, as summary.json reports it.
+#[derive(Debug, Serialize)]
+struct SegmentedScene {
+    name: String,
+    ok: bool,
+    /// Why the scene has no segmentation (bad input: its image, or its prompt).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error: Option<String>,
+    /// How many of the prompt's phrases were found.
+    found: u32,
+    /// The phrases in label order (objects.json's list); those not found have no pixels.
+    objects: Vec<String>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    not_found: Vec<String>,
+    /// Wall time of the scene (ms): reading its image, segmenting, writing its files.
+    latency_ms: f64,
+}
+
+/// summary.json of a `cnfmp segment --scenes` call.
+#[derive(Debug, Serialize)]
+struct SegmentSummary {
+    /// The backend that segmented (what auto resolved to).
+    backend: String,
+    scenes: usize,
+    segmented: usize,
+    failed: usize,
+    #[serde(flatten)]
+    timings: BatchTimings,
+    per_scene: Vec<SegmentedScene>,
+}
+
+/// `cnfmp segment --scenes`: every scene of `scenes` in this one process, the segmenter loaded
+/// (and a bad --backend or --weights refused) before the first. `out` appears complete or not
+/// at all: a folder per segmented scene and summary.json. A scene with bad input is reported
+/// and skipped; the command then exits with code 2 after the others are done.
+fn segment_scenes(scenes: &Path, backend: &BackendArgs, out: &Path) -> Result<(), Failure> {
+    let started = Instant::now();
+    let scenes = list_scenes(scenes, Needs::Prompt)?;
+    let staged = StagedDirectory::new(out)?;
+    let bridge = Bridge::start_default()?;
+    let backend_name = bridge.segmenter_preload(&backend.backend, backend.weights.clone())?;
+    let loop_started = Instant::now();
+    let (outcomes, outcome) = for_each_scene("segment", "not segmented", &scenes, |scene| {
+        let SceneObjects::Prompt(prompt) = &scene.objects else { unreachable!("scenes listed for segmenting have prompts") };
+        let found = run_segmenter(bridge, read_image(&scene.image)?, prompt, backend, None, true)?;
+        // A failure to write is not the scene's: it stops the batch (and nothing is left).
+        for (name, contents) in output_files(prompt, &found) {
+            staged.write(&format!("{}/{name}", scene.name), &contents).map_err(|err| Failure::Environment(err.to_string()))?;
+        }
+        Ok(found.document)
+    });
+    outcome?;
+    let latencies: Vec<f64> = outcomes.iter().filter(|o| o.result.is_ok()).map(|o| o.latency_ms).collect();
+    let timings = BatchTimings::new(&latencies, started, loop_started);
+    let reports: Vec<SegmentedScene> = outcomes
+        .into_iter()
+        .map(|o| {
+            let (name, latency_ms) = (o.scene.name.clone(), o.latency_ms);
+            match o.result {
+                Ok(d) => SegmentedScene {
+                    name,
+                    ok: true,
+                    error: None,
+                    found: d.found,
+                    not_found: d.objects.iter().filter(|p| !p.found).map(|p| p.phrase.clone()).collect(),
+                    objects: d.objects.into_iter().map(|p| p.phrase).collect(),
+                    latency_ms,
+                },
+                Err(message) => {
+                    SegmentedScene { name, ok: false, error: Some(message), found: 0, objects: Vec::new(), not_found: Vec::new(), latency_ms }
+                }
+            }
+        })
+        .collect();
+    let summary = SegmentSummary {
+        backend: backend_name,
+        scenes: scenes.len(),
+        segmented: latencies.len(),
+        failed: reports.len() - latencies.len(),
+        timings,
+        per_scene: reports,
+    };
+    let text = serde_json::to_string_pretty(&summary).expect("summary serialises");
+    staged.write(SUMMARY_FILE, format!("{text}\n").as_bytes())?;
+    staged.finish()?;
+    let errors: Vec<(&str, Option<&str>)> = summary.per_scene.iter().map(|r| (r.name.as_str(), r.error.as_deref())).collect();
+    end_batch(&summary.backend, "segmented", "a folder per scene", out, &summary.timings, &errors)
 }
 
 pub fn run(command: SegmenterCommand) -> Result<(), Failure> {
