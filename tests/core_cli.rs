@@ -8,7 +8,7 @@ use std::process::Output;
 use serde_json::Value;
 
 mod common;
-use common::{TINY_CONFIG, arg, cnfmp, stderr};
+use common::{TINY_CONFIG, arg, cnfmp, copy_tree, repo, stderr};
 
 
 fn assert_bad_input(output: &Output, needle: &str) {
@@ -271,4 +271,32 @@ fn train_predict_eval_and_bad_inputs() {
         ]),
         "trained on wall_avoidance",
     );
+}
+
+/// A model directory that cannot be loaded (here: a config field this cnfmp does not know) is
+/// refused before the first scene with the loader's message, by `eval` and by
+/// `predict --scenes`, rather than failing every scene with it.
+#[test]
+fn a_model_that_cannot_be_loaded_is_refused_before_the_first_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("model");
+    copy_tree(&repo().join("models/wall_avoidance"), &model);
+    let config_path = model.join("config.json");
+    let mut config: Value = serde_json::from_str(&std::fs::read_to_string(&config_path).unwrap()).unwrap();
+    config["bogus_field"] = Value::from(1);
+    std::fs::write(&config_path, serde_json::to_string_pretty(&config).unwrap()).unwrap();
+
+    let output = cnfmp(&["eval", "--model", arg(&model), "--task", "wall_avoidance", "--episodes", "3", "--seed-start", "1000000"]);
+    assert_bad_input(&output, "cannot load the model: ");
+    assert!(stderr(&output).contains("unknown field(s) bogus_field"), "{}", stderr(&output));
+    assert!(!stderr(&output).contains("[1/3]"), "no episode runs: {}", stderr(&output));
+
+    let scenes = dir.path().join("scenes");
+    std::fs::create_dir_all(scenes.join("a")).unwrap();
+    std::fs::write(scenes.join("a/image.png"), "never read").unwrap();
+    std::fs::write(scenes.join("a/prompt.txt"), "reach the goal marker").unwrap();
+    let out = dir.path().join("batch");
+    let output = cnfmp(&["predict", "--model", arg(&model), "--scenes", arg(&scenes), "--out", arg(&out)]);
+    assert_bad_input(&output, "unknown field(s) bogus_field");
+    assert!(!out.exists(), "nothing is written");
 }

@@ -19,7 +19,7 @@ use super::stats::{mean, quantile, wilson_interval_95};
 use crate::episode::Simulator;
 use crate::failure::Failure;
 use crate::files::write_atomically;
-use crate::model_dir::{check_training_outputs, model_task};
+use crate::model_dir::{check_training_outputs, load_model, model_task};
 use crate::seeds::{first_heldout_seed, heldout_seed_range, validation_seed_range};
 use crate::segmentation::{BackendArgs, prompt_roles, run_segmenter};
 
@@ -197,6 +197,7 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
     }
     let started = Instant::now();
     let bridge = Bridge::start_default()?;
+    load_model(bridge, &args.model)?;
     let simulator = Simulator::new(bridge)?;
     let roles = if args.from_prompt { Some(prompt_roles(bridge, &args.model)?) } else { None };
     let mut episodes: Vec<Episode> = Vec::new();

@@ -15,7 +15,7 @@ use super::scenes::{BatchTimings, Needs, ObjectNames, SUMMARY_FILE, SceneInput, 
 use crate::segmentation::{BackendArgs, describe, prompt_roles, run_segmenter};
 use super::shared::trajectory_of;
 use crate::files::read_bytes;
-use crate::model_dir::model_task;
+use crate::model_dir::{load_model, model_task};
 use crate::failure::Failure;
 use crate::files::{require_new_or_empty_dir, write_atomically};
 use crate::scene_masks::{self, CoarseMasks};
@@ -187,8 +187,9 @@ fn predict_scenes(model: &Path, scenes: &Path, backend: &BackendArgs, out: &Path
     let scenes = list_scenes(scenes, Needs::MasksOrPrompt)?;
     model_task(model)?;
     require_new_or_empty_dir(out)?;
-    fs::create_dir_all(out).map_err(|err| Failure::BadInput(format!("cannot create {}: {err}", out.display())))?;
     let bridge = Bridge::start_default()?;
+    load_model(bridge, model)?;
+    fs::create_dir_all(out).map_err(|err| Failure::BadInput(format!("cannot create {}: {err}", out.display())))?;
     let loop_started = Instant::now();
     let (outcomes, outcome) = for_each_scene("predict", "not predicted", &scenes, |scene| {
         let done = predict_scene(bridge, model, scene, backend)?;
