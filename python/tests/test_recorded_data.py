@@ -135,7 +135,15 @@ def test_the_camera_is_the_annotated_one_or_chosen():
 
 def test_gripper_events_use_hysteresis_and_alignment_moves_them_to_the_median():
     noisy = np.array([1, 0.6, 0.4, 0.3, 0.4, 0.36, 0.2, 0.5, 0.7, 1.0])
-    assert alignment.gripper_events(noisy) == [3, 8]
+    assert alignment.gripper_events(noisy, (0.35, 0.65)) == [3, 8]
+    # The band comes from the data: a gripper that reopens only to 0.55 (to clear a cup) and
+    # jitters by 0.05 about each level still makes exactly its four events.
+    rng = np.random.default_rng(0)
+    cup_like = np.repeat([1.0, 0.55, 0.0, 0.55, 0.0, 0.55], [5, 15, 20, 15, 20, 15]) + rng.uniform(-0.05, 0.05, 90)
+    close_below, open_above = alignment.event_thresholds([cup_like])
+    assert 0.05 < close_below < open_above < 0.5
+    assert alignment.gripper_events(cup_like) == [20, 40, 55, 75]
+    assert alignment.event_thresholds([np.full(10, 0.7)]) == (-1.0, 2.0)  # never moves: no events
 
     def demo(close: int, open_: int, length: int) -> np.ndarray:
         trajectory = np.zeros((length, 8))

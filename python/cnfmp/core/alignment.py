@@ -16,22 +16,46 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Hysteresis of the event detector on the gripper opening (0 closed, 1 open): a closing
-#: event when the opening falls below CLOSE_BELOW, an opening event when it rises above
-#: OPEN_ABOVE again, so sensor noise around one threshold makes no extra events.
-CLOSE_BELOW, OPEN_ABOVE = 0.35, 0.65
+def event_thresholds(grippers: list[np.ndarray]) -> tuple[float, float]:
+    """The event detector's hysteresis band (close below, open above) for gripper openings
+    in [0, 1]: the threshold that best splits all the values of `grippers` (list of (T,))
+    into a closed and an open level (Otsu's criterion: most variance between the two), give
+    or take a quarter of the gap between the levels' means.
+
+    Read from the data because grippers settle where the task puts them: a cup grasp
+    reopens only to 0.55 to clear the next cup, a grasp on a thick object closes to 0.4,
+    and fixed thresholds would miss those events. A band rather than one threshold, so
+    sensor noise around it makes no extra events. A gripper that never moves gives (-1, 2):
+    no events."""
+    values = np.sort(np.concatenate([np.asarray(g, np.float64).ravel() for g in grippers]))
+    if len(values) < 2 or values[-1] - values[0] < 1e-6:
+        return -1.0, 2.0
+    # Between-class variance of every split between consecutive values.
+    prefix = np.cumsum(values)
+    count = np.arange(1, len(values))
+    low_mean = prefix[:-1] / count
+    high_mean = (prefix[-1] - prefix[:-1]) / (len(values) - count)
+    between = count * (len(values) - count) * (high_mean - low_mean) ** 2
+    between[values[1:] - values[:-1] <= 0] = -1.0  # only splits between distinct values
+    split = int(np.argmax(between))
+    threshold = 0.5 * (values[split] + values[split + 1])
+    band = 0.25 * (high_mean[split] - low_mean[split])
+    return threshold - band, threshold + band
 
 
-def gripper_events(gripper: np.ndarray) -> list[int]:
-    """Frame indices where the gripper (T,) opening in [0, 1] closes or opens, in order
-    (the first frame of the new state); the state starts as the first frame's."""
-    closed = bool(gripper[0] < 0.5)
+def gripper_events(gripper: np.ndarray, thresholds: tuple[float, float] | None = None) -> list[int]:
+    """Frame indices where the gripper (T,) opening in [0, 1] closes (falls below
+    thresholds[0]) or opens (rises above thresholds[1]), in order (the first frame of the new
+    state); the state starts as the first frame's. `thresholds` default: this signal's own
+    (:func:`event_thresholds`)."""
+    close_below, open_above = thresholds or event_thresholds([gripper])
+    closed = bool(gripper[0] < 0.5 * (close_below + open_above))
     events = []
     for frame, value in enumerate(gripper):
-        if not closed and value < CLOSE_BELOW:
+        if not closed and value < close_below:
             closed = True
             events.append(frame)
-        elif closed and value > OPEN_ABOVE:
+        elif closed and value > open_above:
             closed = False
             events.append(frame)
     return events
@@ -89,8 +113,10 @@ def _warp(trajectory: np.ndarray, source_knots: np.ndarray, target_knots: np.nda
 def align_demonstrations(trajectories: list[np.ndarray], fps: float) -> tuple[list[np.ndarray], Alignment]:
     """Warps every (T_b, 8) ``x y z qw qx qy qz gripper`` trajectory at `fps` so that its gripper
     events and its end fall at the median frames of its group (the demonstrations with the
-    same number of events). Returns (aligned trajectories, :class:`Alignment`)."""
-    events = [gripper_events(t[:, 7]) for t in trajectories]
+    same number of events), the events detected with one band for all of them
+    (:func:`event_thresholds`). Returns (aligned trajectories, :class:`Alignment`)."""
+    thresholds = event_thresholds([t[:, 7] for t in trajectories])
+    events = [gripper_events(t[:, 7], thresholds) for t in trajectories]
     counts = Counter(len(e) for e in events)
     majority = max(counts, key=lambda count: (counts[count], -count))
     aligned: list[np.ndarray | None] = [None] * len(trajectories)
