@@ -119,7 +119,8 @@ fn png(width: u32, height: u32, depth: png::BitDepth, pixels: &[u8]) -> Vec<u8> 
 fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigterm_drains() {
     let dir = tempfile::tempdir().unwrap();
     let (image, prompt) = render_scene(dir.path());
-    let mut server = Server::start(&["--queue-capacity", "2", "--max-body-bytes", "3000000"]);
+    // Batches of at most 2, so that the burst below (8 at once) overflows 2 waiting + 2 running.
+    let mut server = Server::start(&["--queue-capacity", "2", "--max-batch", "2", "--max-body-bytes", "3000000"]);
 
     // Health and the model list.
     let (status, text) = get(&server.url("/v1/health"));
@@ -183,7 +184,8 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
     let still = post_form(&server, &image, &[("prompt", &prompt)]);
     assert_eq!(still.status, 200, "after the bad requests: {}", still.body);
 
-    // A burst beyond the queue (2 waiting, 1 running): the rest get 503 + Retry-After at once.
+    // A burst beyond the queue (2 waiting, a batch of up to 2 running): the rest get 503 +
+    // Retry-After at once.
     let burst: Vec<_> = (0..8)
         .map(|_| {
             let (url, image, prompt) = (server.url("/v1/trajectories"), image.clone(), prompt.clone());
@@ -394,6 +396,53 @@ fn every_model_answers_with_masks_as_predict_does_and_bad_masks_get_400() {
     let (content_type, body) = masks_form(&scene.image, &scene.masks, &[("objects", "not json"), ("model", "cup_stacking")]);
     let answer = post(&server.url("/v1/trajectories"), &content_type, &body);
     assert_eq!((answer.status, answer.body["error"]["code"].as_str()), (400, Some("invalid_objects")), "{}", answer.body);
+}
+
+#[test]
+fn requests_served_together_in_one_batch_get_the_answers_each_gets_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = dir.path().join("models");
+    std::fs::create_dir(&models).unwrap();
+    std::os::unix::fs::symlink(repo().join("models").join("cube_stacking"), models.join("cube_stacking")).unwrap();
+    // A long wait, so that requests sent together surely meet in one batch.
+    let server = Server::start_with(&models, &["--max-batch", "8", "--max-batch-wait-ms", "1000"]);
+    let forms: Vec<(String, Vec<u8>)> = (0..4)
+        .map(|k| {
+            let scene = render("cube_stacking", 1_000_010 + k, &dir.path().join(format!("scene-{k}")));
+            masks_form(&scene.image, &scene.masks, &[("objects", &serde_json::to_string(&scene.objects).unwrap())])
+        })
+        .collect();
+    let url = server.url("/v1/trajectories");
+    let alone: Vec<Value> = forms
+        .iter()
+        .map(|(content_type, body)| {
+            let answer = post(&url, content_type, body);
+            assert_eq!(answer.status, 200, "{}", answer.body);
+            assert_eq!(answer.body["timings_ms"]["batch_size"], 1, "a request sent alone runs alone");
+            answer.body
+        })
+        .collect();
+    assert_ne!(alone[0]["frames"], alone[1]["frames"], "the scenes must differ for the check to mean anything");
+    let together: Vec<Value> = forms
+        .into_iter()
+        .map(|(content_type, body)| {
+            let url = url.clone();
+            std::thread::spawn(move || post(&url, &content_type, &body))
+        })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .map(|sent| sent.join().unwrap())
+        .map(|answer| {
+            assert_eq!(answer.status, 200, "{}", answer.body);
+            answer.body
+        })
+        .collect();
+    assert!(together.iter().any(|a| a["timings_ms"]["batch_size"].as_u64() > Some(1)), "no request was batched: {:?}",
+            together.iter().map(|a| a["timings_ms"]["batch_size"].clone()).collect::<Vec<_>>());
+    for (k, (one, batched)) in alone.iter().zip(&together).enumerate() {
+        assert_eq!(one["frames"], batched["frames"], "scene {k}: the batched trajectory differs");
+        assert_eq!(one["objects"], batched["objects"], "scene {k}: the batched latents differ");
+    }
 }
 
 #[test]

@@ -293,6 +293,41 @@ def test_fitting_objects_in_parallel_gives_the_sequential_result(trained, demos,
     assert results[0]["mask_iou"] == results[1]["mask_iou"]
 
 
+def test_a_batch_of_scenes_gets_the_answers_each_gets_alone_and_a_bad_scene_fails_alone(trained, tmp_path, demos):
+    model, _ = trained
+    save_model(model, str(tmp_path))
+    names = ["wall", "goal marker"]
+    scenes = [(png(demos.images[b]), png(demos.masks[b]), names) for b in (0, 1, 2)]
+    alone = [json.loads(api.predict(str(tmp_path), *scene)) for scene in scenes]
+    batch = api.predict_batch(str(tmp_path), [scenes[0], (b"not a png", scenes[1][1], names), scenes[1], scenes[2]])
+    assert isinstance(batch[1], InputError) and "not an image" in str(batch[1])
+    together = [json.loads(answer) for answer in (batch[0], batch[2], batch[3])]
+    for one, other in zip(alone, together):
+        assert one["frames"] == other["frames"] and one["objects"] == other["objects"]
+        assert one["scene_psnr_db"] == other["scene_psnr_db"]
+    assert alone[0]["frames"] != alone[1]["frames"], "different scenes must differ for the check to mean anything"
+
+
+def test_the_search_scores_on_the_image_the_pool_points_whose_centres_lie_nearest_the_mask(trained):
+    model, _ = trained
+    predictor = Predictor(model)
+    k = model.config.num_endpoints
+    pool = torch.log(torch.from_numpy(np.random.default_rng(0).dirichlet(np.ones(k), size=500)).float() + 1e-4)
+    centre = torch.tensor([0.3, -0.2])
+    kept = predictor._nearest_centres(0, pool, centre)
+    assert kept.shape == (model.config.search_candidates, k)
+
+    def error(logits):
+        with torch.no_grad():
+            latent = model.object_latent(0, predictor.weights_of(logits))
+            return ((model.objects[0].object_centre(latent, centre.expand(len(logits), -1)) - centre) ** 2).sum(-1)
+
+    assert error(kept).max() <= error(pool).sort().values[model.config.search_candidates - 1] + 1e-9
+    assert error(kept).mean() < error(pool).mean()
+    few = pool[:5]
+    assert torch.equal(predictor._nearest_centres(0, few, centre), few), "a pool no larger than wanted is kept whole"
+
+
 def test_baked_appearance_reproduces_the_network_between_its_texels(trained):
     from cnfmp.core.modeling_cnfmp import BakedAppearance
 

@@ -130,6 +130,15 @@ pub struct RecordedMotion {
     pub values: Vec<Vec<f64>>,
 }
 
+/// One scene to predict: the encoded image, the label-map masks of the same size, and the
+/// names of the labels in order.
+#[derive(Debug, Clone)]
+pub struct SceneToPredict {
+    pub image: Vec<u8>,
+    pub masks: Vec<u8>,
+    pub objects: Vec<String>,
+}
+
 /// A loaded model, as `cnfmp.core.api.describe` reports it.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct ModelDescription {
@@ -186,19 +195,59 @@ impl Bridge {
         masks: Vec<u8>,
         objects: Vec<String>,
     ) -> Result<Prediction, BridgeError> {
+        let mut answers = self.core_predict_batch(model_dir, vec![SceneToPredict { image, masks, objects }])?;
+        answers.pop().unwrap_or_else(|| Err(BridgeError::Protocol("cnfmp.core.api.predict_batch answered nothing".into())))
+    }
+
+    /// Predicts several scenes with the (resident) model in `model_dir` in one call
+    /// (`cnfmp.core.api.predict_batch`): their objects are fitted together, and each answer is
+    /// the one [`Bridge::core_predict`] gives that scene alone (its timings aside). One result
+    /// per scene, in order: a scene's bad input fails that scene alone. The outer error is for
+    /// the whole call (a model that cannot be loaded, say).
+    pub fn core_predict_batch(
+        &self,
+        model_dir: &Path,
+        scenes: Vec<SceneToPredict>,
+    ) -> Result<Vec<Result<Prediction, BridgeError>>, BridgeError> {
         let model_dir = model_dir.to_path_buf();
-        let json: String = self.call(move |py| {
-            let run = || -> PyResult<String> {
-                let kwargs = kwargs!(py, model_dir = model_dir, image_png = PyBytes::new(py, &image),
-                                     masks_png = PyBytes::new(py, &masks), objects = objects);
-                py.import("cnfmp.core.api")?.call_method("predict", (), Some(&kwargs))?.extract()
+        let count = scenes.len();
+        let answers: Vec<Result<String, BridgeError>> = self.call(move |py| {
+            let run = || -> PyResult<Vec<Result<String, BridgeError>>> {
+                let scenes: Vec<_> = scenes
+                    .into_iter()
+                    .map(|s| (PyBytes::new(py, &s.image), PyBytes::new(py, &s.masks), s.objects))
+                    .collect();
+                let kwargs = kwargs!(py, model_dir = model_dir, scenes = scenes);
+                let answers = py.import("cnfmp.core.api")?.call_method("predict_batch", (), Some(&kwargs))?;
+                let mut out = Vec::new();
+                for answer in answers.try_iter()? {
+                    let answer = answer?;
+                    out.push(match answer.extract::<String>() {
+                        Ok(json) => Ok(json),
+                        // The scene's own exception, returned rather than raised.
+                        Err(_) => Err(BridgeError::python(py, &PyErr::from_value(answer))),
+                    });
+                }
+                Ok(out)
             };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
-        let mut prediction: Prediction = serde_json::from_str(&json)
-            .map_err(|err| BridgeError::Protocol(format!("cnfmp.core.api.predict: {err}")))?;
-        prediction.json = json;
-        Ok(prediction)
+        if answers.len() != count {
+            return Err(BridgeError::Protocol(format!(
+                "cnfmp.core.api.predict_batch answered {} scene(s) of {count}",
+                answers.len()
+            )));
+        }
+        Ok(answers
+            .into_iter()
+            .map(|answer| {
+                let json = answer?;
+                let mut prediction: Prediction = serde_json::from_str(&json)
+                    .map_err(|err| BridgeError::Protocol(format!("cnfmp.core.api.predict_batch: {err}")))?;
+                prediction.json = json;
+                Ok(prediction)
+            })
+            .collect())
     }
 
     /// Draws the benchmark chart (`cnfmp.core.report.table_chart`): MED and success per task

@@ -140,6 +140,9 @@ pub struct StageTimings {
     pub infer_ms: f64,
     /// Whole request, from the first byte read to the response.
     pub total_ms: f64,
+    /// Requests served together in this one's batch, itself included (1: it ran alone); the
+    /// segment and infer times are the batch's.
+    pub batch_size: u32,
 }
 
 /// The answer to `POST /v1/trajectories`: the trajectory JSON of design.md (`fps`,

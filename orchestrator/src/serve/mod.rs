@@ -27,6 +27,7 @@ use crate::segmentation::BackendArgs;
 use crate::failure::Failure;
 use catalog::Catalog;
 use pipeline::{BridgePipeline, SegmenterChoice};
+use queue::Batching;
 use routes::{AppState, Limits};
 
 /// The line `cnfmp serve` prints on stdout once it listens; the address follows it.
@@ -49,6 +50,14 @@ pub struct ServeArgs {
     /// Requests that may wait for the Python worker while it runs one; the next gets 503.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=4096))]
     queue_capacity: u32,
+    /// Most requests for the same model served together as one batch (their objects are
+    /// fitted together, keeping every core busy); 1 serves each request alone.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=256))]
+    max_batch: u32,
+    /// Longest the server waits (ms) for more requests to join a batch once it could start
+    /// one; 0 batches only the requests already waiting.
+    #[arg(long, default_value_t = 2.0, value_parser = non_negative_ms)]
+    max_batch_wait_ms: f64,
     /// Seconds a trajectory request may take, waiting included, before it gets 504.
     #[arg(long, default_value_t = 30.0, value_parser = positive_seconds)]
     request_timeout_s: f64,
@@ -61,6 +70,13 @@ pub struct ServeArgs {
     /// Longest prompt (characters); the segmenter reads at most 1000.
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..=1000))]
     max_prompt_chars: u32,
+}
+
+fn non_negative_ms(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(ms) if ms.is_finite() && (0.0..=10_000.0).contains(&ms) => Ok(ms),
+        _ => Err(format!("{text:?} is not a number of milliseconds in 0..=10000")),
+    }
 }
 
 fn positive_seconds(text: &str) -> Result<f64, String> {
@@ -82,7 +98,11 @@ pub fn run(args: ServeArgs) -> Result<(), Failure> {
         .map_err(|err| Failure::from(err).with_context("cannot load the segmenter"))?;
     eprintln!("cnfmp serve: segmenter {backend}; ready in {:.1} s", started.elapsed().as_secs_f64());
     let segmenter = SegmenterChoice { backend, weights: args.segmenter.weights.clone() };
-    let pipeline = BridgePipeline::start(bridge, args.queue_capacity as usize, segmenter)
+    let batching = Batching {
+        max_size: args.max_batch as usize,
+        max_wait: Duration::from_secs_f64(args.max_batch_wait_ms / 1e3),
+    };
+    let pipeline = BridgePipeline::start(bridge, args.queue_capacity as usize, batching, segmenter)
         .map_err(|err| Failure::Environment(format!("cannot start the dispatcher thread: {err}")))?;
     let state = Arc::new(AppState {
         catalog,

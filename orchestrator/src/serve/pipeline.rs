@@ -1,17 +1,18 @@
 //! The Python work behind `POST /v1/trajectories`, behind a trait: the server queues a
-//! [`PipelineJob`] and awaits its [`PipelineResult`]. [`BridgePipeline`] runs it on the
-//! bridge's worker (segment, unless the masks came with the request, then predict); tests of
-//! the HTTP layer stand in a fake, so its 4xx paths need no Python.
+//! [`PipelineJob`] and awaits its [`PipelineResult`]. [`BridgePipeline`] runs batches of jobs
+//! for one model on the bridge's worker (segment each prompt, unless the masks came with the
+//! request, then predict the batch's scenes together); tests of the HTTP layer stand in a
+//! fake, so its 4xx paths need no Python.
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use segmenter_bridge::{Bridge, Prediction, SegmentRequest, Segmentation};
+use segmenter_bridge::{Bridge, BridgeError, Prediction, SceneToPredict, SegmentRequest, Segmentation};
 use tokio::sync::oneshot;
 
 use super::error::ApiError;
 use super::metrics::QueueGauges;
-use super::queue::{Done, PythonQueue, Refused};
+use super::queue::{Batching, Done, PythonQueue, Refused};
 use crate::scene_masks::CoarseMasks;
 
 /// How a request finds its objects.
@@ -45,7 +46,8 @@ pub enum FoundObjects {
 pub struct PipelineOutput {
     pub found: FoundObjects,
     pub prediction: Prediction,
-    /// Seconds spent segmenting (0 when the masks came with the request) and predicting.
+    /// Seconds spent segmenting (0 when the masks came with the request) and predicting (the
+    /// whole batch's prediction: its scenes are predicted together).
     pub segment_s: f64,
     pub infer_s: f64,
 }
@@ -72,23 +74,27 @@ pub struct SegmenterChoice {
     pub weights: Option<PathBuf>,
 }
 
-/// The real pipeline: jobs run in order on the bridge's Python worker.
+/// The real pipeline: batches of jobs run in order on the bridge's Python worker.
 pub struct BridgePipeline {
-    queue: PythonQueue<PipelineResult>,
+    queue: PythonQueue<PipelineJob, PipelineResult>,
     segmenter: SegmenterChoice,
 }
 
 impl BridgePipeline {
-    /// Starts the dispatcher thread in front of `bridge`; at most `capacity` jobs wait.
-    pub fn start(bridge: &'static Bridge, capacity: usize, segmenter: SegmenterChoice) -> std::io::Result<Self> {
-        Ok(BridgePipeline { queue: PythonQueue::start(bridge, capacity)?, segmenter })
+    /// Starts the dispatcher thread in front of `bridge`; at most `capacity` jobs wait, and
+    /// jobs for the same model are batched as `batching` says.
+    pub fn start(bridge: &'static Bridge, capacity: usize, batching: Batching, segmenter: SegmenterChoice)
+                 -> std::io::Result<Self> {
+        let chosen = segmenter.clone();
+        let queue = PythonQueue::start(capacity, batching, |job: &PipelineJob| job.model_dir.clone(),
+                                       move |jobs| run_batch(bridge, &chosen, jobs))?;
+        Ok(BridgePipeline { queue, segmenter })
     }
 }
 
 impl Pipeline for BridgePipeline {
     fn submit(&self, job: PipelineJob) -> Result<oneshot::Receiver<Done<PipelineResult>>, Refused> {
-        let segmenter = self.segmenter.clone();
-        self.queue.submit(move |bridge| run(bridge, &segmenter, job))
+        self.queue.submit(job)
     }
 
     fn gauges(&self) -> QueueGauges {
@@ -104,10 +110,47 @@ impl Pipeline for BridgePipeline {
     }
 }
 
-/// Segments (unless the masks came with the request), then predicts.
-fn run(bridge: &Bridge, segmenter: &SegmenterChoice, job: PipelineJob) -> PipelineResult {
-    let segment_started = Instant::now();
-    let (labels_png, names, found) = match job.objects {
+/// A job whose objects are found: what it predicts from, and how long finding them took.
+struct Found {
+    scene: SceneToPredict,
+    found: FoundObjects,
+    segment_s: f64,
+}
+
+/// Runs a batch of jobs for one model: each job's prompt is segmented (unless its masks came
+/// with it), then every scene is predicted in one call. One result per job, in order; a job's
+/// bad input fails that job alone.
+fn run_batch(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob>) -> Vec<PipelineResult> {
+    let Some(model_dir) = jobs.first().map(|job| job.model_dir.clone()) else { return Vec::new() };
+    let mut scenes = Vec::with_capacity(jobs.len());
+    let found: Vec<Result<(FoundObjects, f64), ApiError>> = jobs
+        .into_iter()
+        .map(|job| {
+            let Found { scene, found, segment_s } = find_objects(bridge, segmenter, job)?;
+            scenes.push(scene);
+            Ok((found, segment_s))
+        })
+        .collect();
+    let infer_started = Instant::now();
+    let mut predictions = match bridge.core_predict_batch(&model_dir, scenes) {
+        Ok(predictions) => predictions.into_iter(),
+        Err(err) => return found.into_iter().map(|_| Err(ApiError::from(err.clone()))).collect(),
+    };
+    let infer_s = infer_started.elapsed().as_secs_f64();
+    found
+        .into_iter()
+        .map(|found| {
+            let (found, segment_s) = found?;
+            let prediction = predictions.next().unwrap_or(Err(BridgeError::Protocol("a batch answer is missing".into())))?;
+            Ok(PipelineOutput { found, prediction, segment_s, infer_s })
+        })
+        .collect()
+}
+
+/// Segments the job's prompt, unless the masks came with the request.
+fn find_objects(bridge: &Bridge, segmenter: &SegmenterChoice, job: PipelineJob) -> Result<Found, ApiError> {
+    let started = Instant::now();
+    let (masks, objects, found) = match job.objects {
         SceneObjects::Masks(masks) => (masks.png(), masks.objects.clone(), FoundObjects::Given(masks)),
         SceneObjects::Prompt(prompt) => {
             let found = bridge.segment(SegmentRequest {
@@ -122,10 +165,8 @@ fn run(bridge: &Bridge, segmenter: &SegmenterChoice, job: PipelineJob) -> Pipeli
         }
     };
     let segment_s = match found {
-        FoundObjects::Segmented(_) => segment_started.elapsed().as_secs_f64(),
+        FoundObjects::Segmented(_) => started.elapsed().as_secs_f64(),
         FoundObjects::Given(_) => 0.0,
     };
-    let infer_started = Instant::now();
-    let prediction = bridge.core_predict(&job.model_dir, job.image, labels_png, names)?;
-    Ok(PipelineOutput { found, prediction, segment_s, infer_s: infer_started.elapsed().as_secs_f64() })
+    Ok(Found { scene: SceneToPredict { image: job.image, masks, objects }, found, segment_s })
 }

@@ -188,6 +188,7 @@ async fn answer_trajectory(state: &AppState, request: Request, started: Instant)
         segment_ms: output.segment_s * 1e3,
         infer_ms: output.infer_s * 1e3,
         total_ms: total * 1e3,
+        batch_size: done.batch_size as u32,
     };
     build_response(served, prompt, output, timings, input.include_masks)
 }

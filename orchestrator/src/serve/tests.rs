@@ -44,7 +44,7 @@ impl Pipeline for FakePipeline {
             Behaviour::FailInside => {
                 let (reply, receiver) = oneshot::channel();
                 let failure = ApiError::internal("Traceback: RuntimeError: secret detail of the worker");
-                let _ = reply.send(Done { waited: Duration::ZERO, result: Err(failure) });
+                let _ = reply.send(Done { waited: Duration::ZERO, batch_size: 1, result: Err(failure) });
                 Ok(receiver)
             }
         }

@@ -18,7 +18,7 @@ from cnfmp.core.data import task_object_labels
 from cnfmp.errors import InputError
 from cnfmp.images import decode_image, decode_labels, encode_png
 
-__all__ = ["describe", "predict", "synthetic_scene", "train", "warm_up"]
+__all__ = ["describe", "predict", "predict_batch", "synthetic_scene", "train", "warm_up"]
 
 _LOADED: dict[str, tuple[tuple, object]] = {}
 
@@ -67,29 +67,79 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
     field) and ``"timings_ms"``; for a model trained on a recording in another form,
     ``"recorded"``: the frames in that form (:func:`_recorded_form`).
     """
+    answer = predict_batch(model_dir, [(image_png, masks_png, objects)], seed)[0]
+    if isinstance(answer, Exception):
+        raise answer
+    return answer
+
+
+def predict_batch(model_dir: str, scenes: list[tuple[bytes, bytes, list[str]]], seed: int = 0) -> list:
+    """:func:`predict` for several scenes of one model at once (a server's batch): the
+    objects of every scene are fitted together, so the cores stay busy, and each scene's
+    answer is the one :func:`predict` gives it alone (only its timings differ: the fit's is
+    the whole batch's).
+
+    Args:
+        scenes: (image_png, masks_png, objects) per scene, as :func:`predict` takes them.
+
+    Returns one entry per scene, in order: the JSON document of :func:`predict`, or the
+    exception that scene raised (:class:`cnfmp.errors.InputError` for its bad input); one
+    scene's bad input does not fail the others. A model that cannot be loaded raises.
+    """
     started = time.perf_counter()
+    model = predictor(model_dir)
+    loaded = time.perf_counter()
+    c = model.config
+    object_centric = isinstance(c, CnfmpConfig)
+    answers: list = [None] * len(scenes)
+    prepared = []  # (index, inputs, objects, decode seconds)
+    for index, (image_png, masks_png, objects) in enumerate(scenes):
+        decoding = time.perf_counter()
+        try:
+            image, labels, objects = _decoded_scene(c, image_png, masks_png, objects)
+            inputs = model.prepare(image, labels) if object_centric else (image, labels)
+        except InputError as err:
+            answers[index] = err
+            continue
+        prepared.append((index, inputs, objects, time.perf_counter() - decoding))
+    if object_centric:
+        results = model.predict_prepared([inputs for _, inputs, _, _ in prepared], [seed] * len(prepared))
+    else:  # the baselines fit one global latent per image; nothing to share
+        results = [model.predict(*inputs, seed=seed) for _, inputs, _, _ in prepared]
+    for (index, _, objects, decode_s), result in zip(prepared, results):
+        answers[index] = _document(model_dir, c, result, objects, {
+            "decode_inputs": 1000 * decode_s, "load_model": 1000 * (loaded - started),
+            "infer_latents": 1000 * result["seconds"]["infer"], "decode_trajectory": 1000 * result["seconds"]["decode"],
+            "total": 1000 * (time.perf_counter() - started)})
+    return answers
+
+
+def _decoded_scene(config, image_png: bytes, masks_png: bytes, objects: list[str]) -> tuple:
+    """A scene's image (H, W, 3) uint8, label map (H, W) uint8 and object names as `config`'s
+    model reads them (distractors beyond its task objects become background); InputError for
+    undecodable files and object lists that do not fit the masks or the model."""
     image, labels = decode_image(image_png), decode_labels(masks_png)
     highest = int(labels.max(initial=0))
     if len(objects) < highest:
         raise InputError(f"the objects list names {len(objects)} object(s) but the masks use label {highest}; "
                          "name every labelled object, in label order")
-    decoded = time.perf_counter()
-    model = predictor(model_dir)
-    loaded = time.perf_counter()
-    c = model.config
-    object_centric = isinstance(c, CnfmpConfig)
-    if object_centric and c.task_objects:  # distractors are background to this model
-        labels, objects = task_object_labels(labels, c.task_objects), list(objects)[:c.task_objects]
-    if object_centric and len(objects) > c.num_objects:
-        raise InputError(f"{len(objects)} objects given but the model ({c.task}) has {c.num_objects} object slot(s): "
-                         f"{', '.join(c.object_names)}")
-    result = model.predict(image, labels, seed=seed)
+    if isinstance(config, CnfmpConfig):
+        if config.task_objects:  # distractors are background to this model
+            labels, objects = task_object_labels(labels, config.task_objects), list(objects)[:config.task_objects]
+        if len(objects) > config.num_objects:
+            raise InputError(f"{len(objects)} objects given but the model ({config.task}) has {config.num_objects} "
+                             f"object slot(s): {', '.join(config.object_names)}")
+    return image, labels, objects
+
+
+def _document(model_dir: str, c, result: dict, objects: list[str], timings_ms: dict) -> str:
+    """The JSON answer of :func:`predict` for one scene's prediction `result`."""
     traj = result["trajectory"]
     frames = [{"t": round(float(t), 6), "position": p.round(6).tolist(), "orientation": q.round(6).tolist(),
                "gripper": round(float(g), 6)}
               for t, p, q, g in zip(traj["t"], traj["position"], traj["orientation"], traj["gripper"])]
     slots = []
-    for slot in range(c.num_objects if object_centric else 0):
+    for slot in range(c.num_objects if isinstance(c, CnfmpConfig) else 0):
         present = bool(result["present"][slot])
         slots.append({
             "slot": slot + 1, "name": objects[slot] if slot < len(objects) else c.object_names[slot],
@@ -98,17 +148,13 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
             "reconstruction_mse": result["object_mse"][slot], "psnr_db": result["object_psnr_db"][slot],
             "mask_iou": result["mask_iou"][slot],
         })
-    seconds = result["seconds"]
     recorded = _recorded_form(c, traj)
     return json.dumps({
         "fps": c.output_fps, "frames": frames, **({"recorded": recorded} if recorded else {}),
         "model": {"dir": os.path.abspath(model_dir), "task": c.task, "type": c.model_type},
         "objects": slots, "scene_psnr_db": result.get("scene_psnr_db"),
         # load_model is near zero once the model is resident (it then only checks file times).
-        "timings_ms": {"decode_inputs": 1000 * (decoded - started), "load_model": 1000 * (loaded - decoded),
-                       "infer_latents": 1000 * seconds["infer"],
-                       "decode_trajectory": 1000 * seconds["decode"],
-                       "total": 1000 * (time.perf_counter() - started)},
+        "timings_ms": timings_ms,
     })
 
 

@@ -188,10 +188,15 @@ class CnfmpConfig(MotionConfig):
     #: through training's motion refit, which runs inference), so a config file may set them
     #: in its ``after_training`` section (:mod:`cnfmp.core.training`).
     INFERENCE_FIELDS: ClassVar[tuple[str, ...]] = (
-        "search_candidates", "search_pixels", "search_starts", "refine_steps", "refine_learning_rate",
+        "search_pool", "search_candidates", "search_pixels", "search_starts", "refine_steps", "refine_learning_rate",
         "texels_per_pixel", "residual_grid_pixels", "inference_pixels", "simplex_margin")
-    #: Candidates of the cheap search: random simplex points (plus every training
-    #: demonstration's weights and the simplex vertices).
+    #: Random simplex points drawn per object, ranked by the centre prior alone (where each
+    #: would put the object's centre against its mask's centroid: no image is read, so
+    #: thousands cost well under a millisecond); the best `search_candidates` of them go on
+    #: to the image search. At most `search_candidates` draws exactly those.
+    search_pool: int = 2048
+    #: Candidates of the cheap search scored on the image: random simplex points (the best of
+    #: the pool, plus every training demonstration's weights and the simplex vertices).
     search_candidates: int = 96
     #: Pixels of an object's dilated mask the cheap search scores candidates on.
     search_pixels: int = 128
@@ -223,7 +228,7 @@ class CnfmpConfig(MotionConfig):
         super().check(source)
         positive = ["field_resolution", "latent_dim", "num_endpoints", "field_width", "field_layers",
                     "pixels_per_object", "uniform_pixels",
-                    "gating_width", "time_samples", "batch_demos", "draws", "search_candidates",
+                    "gating_width", "time_samples", "batch_demos", "draws", "search_pool", "search_candidates",
                     "search_starts", "search_pixels", "inference_pixels"]
         for name in positive:
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:

@@ -90,11 +90,11 @@ class Predictor:
 
     def _draw(self, pixels: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """The random draws of one object's search: up to `inference_pixels` of its mask's
-        `pixels` (flat indices) in random order, and `search_candidates` random points of the
-        simplex (C, K)."""
+        `pixels` (flat indices) in random order, and max(`search_pool`, `search_candidates`)
+        random points of the simplex (C, K)."""
         c = self.config
-        return rng.permutation(pixels)[: c.inference_pixels], rng.dirichlet(np.ones(c.num_endpoints),
-                                                                             size=c.search_candidates)
+        return rng.permutation(pixels)[: c.inference_pixels], rng.dirichlet(
+            np.ones(c.num_endpoints), size=max(c.search_pool, c.search_candidates))
 
     def _search(self, slot: int, pixels: np.ndarray, random_points: np.ndarray, rgb: torch.Tensor,
                 colour: torch.Tensor, centre: torch.Tensor) -> tuple[torch.Tensor, tuple]:
@@ -112,7 +112,7 @@ class Predictor:
         known = torch.cat([torch.softmax(self.model.demo_logits[:, slot], dim=-1), torch.eye(k)])
         candidates = torch.cat([
             torch.log((known + m / k) / (1.0 + m) + 1e-6),
-            torch.log(torch.from_numpy(random_points).float() + 1e-4),
+            self._nearest_centres(slot, torch.log(torch.from_numpy(random_points).float() + 1e-4), centre),
         ])
         # The pixels are a random subset already: their first few are a random sample too.
         few = slice(0, c.search_pixels)
@@ -121,6 +121,19 @@ class Predictor:
             losses, _ = self._object_loss(slot, candidates, coords[:, few], colour[None], bg_rgb[:, few],
                                           bg_logit[:, few], target[:, few], centre)
         return candidates[torch.argsort(losses)[: c.search_starts]].clone(), fitting
+
+    def _nearest_centres(self, slot: int, logits: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
+        """The `search_candidates` of the search logits (P, K) whose latents put slot `slot`'s
+        centre nearest the mask centroid `centre` (1, 2): the centre prior of the objective,
+        which needs no pixels, as an amortised first guess before the image is read."""
+        wanted = self.config.search_candidates
+        if logits.shape[0] <= wanted:
+            return logits
+        with torch.no_grad():
+            latent = self.model.object_latent(slot, self.weights_of(logits))
+            anchor = centre.expand(logits.shape[0], -1)
+            error = ((self.model.objects[slot].object_centre(latent, anchor) - centre) ** 2).sum(dim=-1)
+        return logits[torch.argsort(error)[:wanted]]
 
     def _bake(self, slot: int, starts: torch.Tensor, fitting: tuple) -> BakedAppearance:
         """Slot `slot`'s appearance for this scene's colour, baked over the box of template
@@ -149,55 +162,78 @@ class Predictor:
         deformation residual interpolated from a coarse grid (`residual_grid_pixels`);
         `exact` evaluates the networks at every step instead. The MSE and the choice among
         the refined starts always use the networks."""
+        return self.infer_scenes([inputs], [seed], exact)[0]
+
+    def infer_scenes(self, scenes: list[core_data.SceneInputs], seeds: list[int],
+                     exact: bool = False) -> list[tuple[torch.Tensor, list[float | None]]]:
+        """:meth:`infer_scene` for several scenes at once, each with its own seed: every
+        present object of every scene is one fit, and the fits run together on the fitting
+        pool, so a batch keeps every core busy where one scene's few objects would not. Each
+        scene's result is the same as :meth:`infer_scene` gives it alone."""
         c = self.config
-        rgb = torch.from_numpy(inputs.rgb.reshape(-1, 3))
-        colour, centres = torch.from_numpy(inputs.colour), torch.from_numpy(inputs.centre)
-        rng = np.random.default_rng(seed)
-        weights = torch.full((c.num_objects, c.num_endpoints), 1.0 / c.num_endpoints)
-        mse: list[float | None] = [None] * c.num_objects
-        slots = [slot for slot in range(c.num_objects) if inputs.present[slot]]
-        if not slots:
-            return weights, mse
-        # Random draws in slot order (reproducible whatever runs in parallel below).
-        draws = {slot: self._draw(np.flatnonzero(inputs.dilated[slot].reshape(-1)), rng) for slot in slots}
-
-        def fit(slot: int) -> tuple[torch.Tensor, float]:
-            start, fitting = self._search(slot, *draws[slot], rgb, colour[slot], centres[slot])
-            fast = c.refine_steps > 0 and not exact
-            baked = self._bake(slot, start, fitting) if fast and c.texels_per_pixel else None
-            coarse = (CoarseResidual(fitting[0], c.residual_grid_pixels * 2.0 / c.field_resolution)
-                      if fast and c.residual_grid_pixels else None)
-            searched = start.detach().clone()
-            lowest = torch.full((start.shape[0],), float("inf"))
-            best_seen = searched.clone()
-            start.requires_grad_(True)
-            optimiser = Adam(start, lr=c.refine_learning_rate)
-            for _ in range(c.refine_steps):
-                per_start = self._object_loss(slot, start, *fitting, baked=baked, coarse=coarse)[0]
-                with torch.no_grad():  # the loss is of the iterate before this step
-                    better = per_start < lowest
-                    lowest = torch.where(better, per_start, lowest)
-                    best_seen[better] = start[better]
-                optimiser.zero_grad()
-                per_start.sum().backward()
-                optimiser.step()
-            # Adam's first steps have the size of the learning rate whatever the gradient, so
-            # from a start already near the optimum (a training scene's own weights) a short
-            # refinement can end worse than it began. The choice is therefore made, with the
-            # networks, among the search's starts, each start's best iterate (by the
-            # refinement's own loss) and its last one: the fit never ends worse than its search.
-            with torch.no_grad():
-                candidates = torch.cat([searched, best_seen, start.detach()])
-                final, errors = self._object_loss(slot, candidates, *fitting)
-                best = int(torch.argmin(final))
-                return self.weights_of(candidates[best]), float(errors[best])
-
+        fits = []
+        for index, (inputs, seed) in enumerate(zip(scenes, seeds)):
+            rng = np.random.default_rng(seed)
+            # Random draws in slot order (reproducible whatever runs in parallel below).
+            fits += [(index, slot, self._draw(np.flatnonzero(inputs.dilated[slot].reshape(-1)), rng))
+                     for slot in range(c.num_objects) if inputs.present[slot]]
+        results = [(torch.full((c.num_objects, c.num_endpoints), 1.0 / c.num_endpoints), [None] * c.num_objects)
+                   for _ in scenes]
         # The objects' objectives share nothing (Adam is per parameter), so each object is
         # fitted on its own thread: torch releases the GIL inside its kernels, and with one
         # intra-op thread per kernel this is how inference uses a second core.
-        for slot, (slot_weights, slot_mse) in zip(slots, _fitting_pool().map(fit, slots)):
-            weights[slot], mse[slot] = slot_weights, slot_mse
-        return weights, mse
+        fitted = _fitting_pool().map(lambda fit: self._fit_object(scenes[fit[0]], fit[1], fit[2], exact), fits)
+        for (index, slot, _), (slot_weights, slot_mse) in zip(fits, fitted):
+            results[index][0][slot], results[index][1][slot] = slot_weights, slot_mse
+        return results
+
+    def _fit_object(self, inputs: core_data.SceneInputs, slot: int, draws: tuple[np.ndarray, np.ndarray],
+                    exact: bool) -> tuple[torch.Tensor, float]:
+        """The search and refinement of one present object (slot `slot` of the scene `inputs`,
+        with its draws of :meth:`_draw`): its simplex weights (K,) and reconstruction MSE."""
+        c = self.config
+        rgb = torch.from_numpy(inputs.rgb.reshape(-1, 3))
+        colour, centre = torch.from_numpy(inputs.colour[slot]), torch.from_numpy(inputs.centre[slot])
+        start, fitting = self._search(slot, *draws, rgb, colour, centre)
+        fast = c.refine_steps > 0 and not exact
+        baked = self._bake(slot, start, fitting) if fast and c.texels_per_pixel else None
+        coarse = (CoarseResidual(fitting[0], c.residual_grid_pixels * 2.0 / c.field_resolution)
+                  if fast and c.residual_grid_pixels else None)
+        searched = start.detach().clone()
+        lowest = torch.full((start.shape[0],), float("inf"))
+        best_seen = searched.clone()
+        start.requires_grad_(True)
+        optimiser = Adam(start, lr=c.refine_learning_rate)
+        for _ in range(c.refine_steps):
+            per_start = self._object_loss(slot, start, *fitting, baked=baked, coarse=coarse)[0]
+            with torch.no_grad():  # the loss is of the iterate before this step
+                better = per_start < lowest
+                lowest = torch.where(better, per_start, lowest)
+                best_seen[better] = start[better]
+            optimiser.zero_grad()
+            per_start.sum().backward()
+            optimiser.step()
+        # Adam's first steps have the size of the learning rate whatever the gradient, so
+        # from a start already near the optimum (a training scene's own weights) a short
+        # refinement can end worse than it began. The choice is therefore made, with the
+        # networks, among the search's starts, each start's best iterate (by the
+        # refinement's own loss) and its last one: the fit never ends worse than its search.
+        with torch.no_grad():
+            candidates = torch.cat([searched, best_seen, start.detach()])
+            final, errors = self._object_loss(slot, candidates, *fitting)
+            best = int(torch.argmin(final))
+            return self.weights_of(candidates[best]), float(errors[best])
+
+    def prepare(self, image: np.ndarray, labels: np.ndarray) -> core_data.SceneInputs:
+        """A scene's inputs for :meth:`predict_prepared`: image (H, W, 3) uint8 and labels
+        (H, W) uint8 in the model's slot order. InputError for masks this model cannot read."""
+        c = self.config
+        inputs = core_data.scene_inputs(image, labels, c.num_objects, c.field_resolution, c.mask_dilation)
+        for slot in range(c.num_objects):
+            if not inputs.present[slot] and not c.slot_can_be_absent[slot]:
+                raise InputError(f"the masks have no pixels of object {slot + 1} ({c.object_names[slot]}), "
+                                 "which every training scene of this model had")
+        return inputs
 
     def predict(self, image: np.ndarray, labels: np.ndarray, seed: int = 0) -> dict:
         """Trajectory for a scene.
@@ -210,31 +246,35 @@ class Predictor:
         "object_psnr_db", "scene_psnr_db", "mask_iou": per slot IoU of the learned mask with the
         coarse mask, "reconstruction", "learned_masks", "seconds": {"infer", "decode"}}``.
         """
+        return self.predict_prepared([self.prepare(image, labels)], [seed])[0]
+
+    def predict_prepared(self, scenes: list[core_data.SceneInputs], seeds: list[int]) -> list[dict]:
+        """:meth:`predict` for several prepared scenes (:meth:`prepare`) at once, their
+        objects fitted together (:meth:`infer_scenes`); each result is what :meth:`predict`
+        gives for that scene and seed alone, except "seconds"'s "infer", the whole batch's fit."""
         c = self.config
-        inputs = core_data.scene_inputs(image, labels, c.num_objects, c.field_resolution, c.mask_dilation)
-        for slot in range(c.num_objects):
-            if not inputs.present[slot] and not c.slot_can_be_absent[slot]:
-                raise InputError(f"the masks have no pixels of object {slot + 1} ({c.object_names[slot]}), "
-                                 "which every training scene of this model had")
-        rgb = torch.from_numpy(inputs.rgb.reshape(-1, 3))
-        colour = torch.from_numpy(inputs.colour)
-        present = torch.from_numpy(inputs.present)
         started = time.perf_counter()
-        weights, mse = self.infer_scene(inputs, seed)
-        inferred = time.perf_counter()
-        with torch.no_grad():
-            latents = self.model.latents(weights[None], present[None])
-            anchors = torch.from_numpy(inputs.centre)[None]
-            shading = torch.from_numpy(inputs.shading)[None]
-            cues = torch.from_numpy(inputs.tilt_cues)[None]
-            outputs = self.model.motion(self.times, latents, present[None], anchors, shading, cues)[0].numpy().astype(np.float64)
-        trajectory = decode_trajectory(outputs, c)
-        decoded = time.perf_counter()
-        fit = self.scene_fit(latents, colour, present, rgb, inputs.masks, anchors)
-        return {"trajectory": trajectory, "weights": weights.numpy(), "present": inputs.present,
-                "object_mse": mse, "object_psnr_db": [None if m is None else psnr_db(m) for m in mse],
-                **fit,
-                "seconds": {"infer": inferred - started, "decode": decoded - inferred}}
+        inferred_all = self.infer_scenes(scenes, seeds)
+        infer_s = time.perf_counter() - started
+        results = []
+        for inputs, (weights, mse) in zip(scenes, inferred_all):
+            decoding = time.perf_counter()
+            present = torch.from_numpy(inputs.present)
+            with torch.no_grad():
+                latents = self.model.latents(weights[None], present[None])
+                anchors = torch.from_numpy(inputs.centre)[None]
+                shading = torch.from_numpy(inputs.shading)[None]
+                cues = torch.from_numpy(inputs.tilt_cues)[None]
+                outputs = self.model.motion(self.times, latents, present[None], anchors, shading,
+                                            cues)[0].numpy().astype(np.float64)
+            trajectory = decode_trajectory(outputs, c)
+            decoded = time.perf_counter()
+            fit = self.scene_fit(latents, torch.from_numpy(inputs.colour), present,
+                                 torch.from_numpy(inputs.rgb.reshape(-1, 3)), inputs.masks, anchors)
+            results.append({"trajectory": trajectory, "weights": weights.numpy(), "present": inputs.present,
+                            "object_mse": mse, "object_psnr_db": [None if m is None else psnr_db(m) for m in mse],
+                            **fit, "seconds": {"infer": infer_s, "decode": decoded - decoding}})
+        return results
 
     def scene_fit(self, latents, colour, present, rgb, coarse_masks, anchors) -> dict:
         """Whole-image reconstruction PSNR and per-object IoU of the learned masks (argmax of

@@ -222,14 +222,12 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
 
     config = model.config
     predictor = Predictor(model)  # freezes every parameter
-    weights = []
-    for b in range(len(data)):
-        inputs = core_data.scene_inputs(demos.images[b], demos.masks[b], config.num_objects,
-                                        config.field_resolution, config.mask_dilation)
-        # Exact: the refit must not depend on an inference speed-up chosen after training.
-        weights.append(predictor.infer_scene(inputs, seed=config.seed + b, exact=True)[0])
+    scenes = [core_data.scene_inputs(demos.images[b], demos.masks[b], config.num_objects,
+                                     config.field_resolution, config.mask_dilation) for b in range(len(data))]
+    # Exact: the refit must not depend on an inference speed-up chosen after training.
+    fitted = predictor.infer_scenes(scenes, [config.seed + b for b in range(len(data))], exact=True)
     with torch.no_grad():
-        latents = model.latents(torch.stack(weights), data.present)
+        latents = model.latents(torch.stack([weights for weights, _ in fitted]), data.present)
     motion_params = model.motion_parameters()
     for p in motion_params:
         p.requires_grad_(True)
