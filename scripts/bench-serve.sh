@@ -1,11 +1,14 @@
 #!/usr/bin/env bash
 # Load benchmark of the HTTP API on loopback: `cnfmp serve` with the shipped models and the
-# default segmenter; how long it takes to listen and its first request's latency; then wrk POSTing one held-out language_pick_place scene (seed 1000003, as
-# JSON with the image in base64) at 1, 4 and 16 concurrent connections for a fixed duration
-# each. Prints requests/s, p50 and p99 per level, and the answers by status: 200 served,
-# 503 refused because the queue was full (deliberate; the client then waits Retry-After),
-# anything else an error.
-# Environment: BENCH_SECONDS (default 30), BENCH_LEVELS (default "1 4 16").
+# default segmenter; how long it takes to listen and its first request's latency; then wrk
+# POSTing one held-out language_pick_place scene (seed 1000003, as JSON with the image in
+# base64) at 1, 4, 16 and 64 concurrent connections for a fixed duration each. Prints per
+# level requests/s served, p50 and p99, the answers by status (200 served, 503 refused because
+# the queue was full: deliberate, the client then waits Retry-After; anything else an error)
+# and the server's resident memory (now and peak); then, with stress-ng present, one client
+# again while two busy processes take both cores (graceful under contention).
+# Environment: BENCH_SECONDS (default 30), BENCH_LEVELS (default "1 4 16 64"),
+# BENCH_SERVE_ARGS (extra `cnfmp serve` flags, e.g. "--max-batch 1").
 set -euo pipefail
 source "$(dirname "$0")/common.sh"
 cd "$repo"
@@ -28,7 +31,8 @@ json.dump({"image_base64": image, "prompt": scene["prompt"]}, open(f"{work}/body
 PY
 
 started=$(date +%s.%N)
-target/release/cnfmp serve --addr 127.0.0.1:0 >"$work/server.out" 2>"$work/server.log" &
+# shellcheck disable=SC2086  # BENCH_SERVE_ARGS is a list of flags
+target/release/cnfmp serve --addr 127.0.0.1:0 ${BENCH_SERVE_ARGS:-} >"$work/server.out" 2>"$work/server.log" &
 server_pid=$!
 for _ in $(seq 600); do
     grep -q "listening on" "$work/server.out" 2>/dev/null && break
@@ -48,8 +52,26 @@ for which in first second; do
     seconds_taken=$(curl -sf -o /dev/null -w '%{time_total}' -H 'Content-Type: application/json' --data-binary "@$BENCH_BODY" "$url")
     echo "$which request: $(awk -v s="$seconds_taken" 'BEGIN { printf "%.0f", 1000 * s }') ms"
 done
-for connections in ${BENCH_LEVELS:-1 4 16}; do
-    threads=$(( connections < 2 ? connections : 2 ))
+# The server's resident memory now and at its peak (VmRSS, VmHWM), MiB.
+memory() {
+    awk '/^VmRSS/ {rss = $2} /^VmHWM/ {hwm = $2} END {printf "rss %.0f MiB (peak %.0f MiB)", rss / 1024, hwm / 1024}' "/proc/$server_pid/status"
+}
+level() {
+    local connections=$1 label=$2
+    local threads=$(( connections < 2 ? connections : 2 ))
+    local result
     result=$(wrk -t"$threads" -c"$connections" -d"${seconds}s" --timeout 60s -s scripts/bench-serve.lua "$url" | grep '^RESULT')
-    echo "concurrency $connections, ${seconds} s: ${result#RESULT }"
+    echo "$label $connections, ${seconds} s: ${result#RESULT }; $(memory)"
+}
+for connections in ${BENCH_LEVELS:-1 4 16 64}; do
+    level "$connections" concurrency
 done
+if command -v stress-ng >/dev/null; then
+    stress-ng --cpu 2 --timeout "$(( seconds + 10 ))s" --quiet &
+    stress_pid=$!
+    sleep 2
+    level 1 "with stress-ng --cpu 2, concurrency"
+    kill "$stress_pid" 2>/dev/null; wait "$stress_pid" 2>/dev/null || true
+else
+    say "stress-ng is missing (make setup installs it): the run under contention is skipped"
+fi

@@ -2,10 +2,10 @@
 # Installs the Debian packages the project needs, only when one is missing (idempotent, and
 # fast when nothing is to do): EGL/Mesa for MuJoCo's offscreen rendering (MUJOCO_GL=egl,
 # software llvmpipe, no GPU needed), OSMesa as the fallback backend, and wrk for the HTTP
-# load benchmark (scripts/bench-serve.sh).
+# load benchmark (scripts/bench-serve.sh), stress-ng for its run under CPU contention.
 set -euo pipefail
 
-packages=(libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libgles2 libosmesa6 wrk)
+packages=(libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libgles2 libosmesa6 wrk stress-ng)
 
 missing=()
 for package in "${packages[@]}"; do

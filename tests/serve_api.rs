@@ -126,7 +126,8 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
     let (status, text) = get(&server.url("/v1/health"));
     assert_eq!(status, 200, "{text}");
     let health: Value = serde_json::from_str(&text).unwrap();
-    assert_eq!(health["status"], "ok");
+    assert_eq!((health["status"].as_str(), health["ready"].as_bool()), (Some("ok"), Some(true)), "{health}");
+    assert!(health["ready_after_s"].as_f64().is_some_and(|s| s > 0.0), "{health}");
     assert_eq!(health["models"], 5, "{health}");
     assert_eq!(health["segmenter"], "film");
     let (status, text) = get(&server.url("/v1/models"));

@@ -219,6 +219,12 @@ pub struct ModelList {
 pub struct Health {
     /// Always "ok" when the server answers.
     pub status: String,
+    /// Always true when the server answers: it listens only once every model is loaded and
+    /// has predicted once, and the segmenter has run once on the vocabulary's phrases, so
+    /// its first request is as fast as the later ones.
+    pub ready: bool,
+    /// Seconds from the process's start until it was ready and listening.
+    pub ready_after_s: f64,
     pub version: String,
     /// Models loaded and served.
     pub models: usize,

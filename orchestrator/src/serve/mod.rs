@@ -115,6 +115,7 @@ pub fn run(args: ServeArgs) -> Result<(), Failure> {
             request_timeout: Duration::from_secs_f64(args.request_timeout_s),
         },
         started,
+        ready_after: started.elapsed(),
     });
     // Two async workers suffice: handlers only parse, check and wait; Python does the work.
     let runtime = tokio::runtime::Builder::new_multi_thread()

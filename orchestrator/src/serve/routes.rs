@@ -46,7 +46,9 @@ pub struct AppState {
     pub pipeline: Box<dyn Pipeline>,
     pub metrics: Metrics,
     pub limits: Limits,
+    /// When the process started, and how long it took to be ready (models loaded and warm).
     pub started: Instant,
+    pub ready_after: Duration,
 }
 
 type Shared = Arc<AppState>;
@@ -560,6 +562,8 @@ async fn health(State(state): State<Shared>) -> Json<Health> {
     let queue = state.pipeline.gauges();
     Json(Health {
         status: "ok".into(),
+        ready: true,
+        ready_after_s: state.ready_after.as_secs_f64(),
         version: env!("CARGO_PKG_VERSION").into(),
         models: state.catalog.models().count(),
         segmenter: state.pipeline.segmenter().to_owned(),

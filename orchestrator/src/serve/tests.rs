@@ -102,6 +102,7 @@ fn app(behaviour: Behaviour) -> (Router, Arc<AtomicUsize>) {
             request_timeout: Duration::from_secs(5),
         },
         started: Instant::now(),
+        ready_after: Duration::from_secs(1),
     };
     (router(Arc::new(state)), submitted)
 }
