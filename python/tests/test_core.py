@@ -661,7 +661,8 @@ def test_after_training_settings_change_the_shipped_config_but_not_the_weights(d
                        progress=False)
     plain, after = (json.loads((tmp_path / name / CONFIG_FILE).read_text()) for name in ("plain", "after"))
     assert (after["refine_steps"], after["refine_learning_rate"]) == (3, 0.07)
-    assert (plain["refine_steps"], plain["refine_learning_rate"]) == (TINY["refine_steps"], 0.2)
+    assert (plain["refine_steps"], plain["refine_learning_rate"]) == (TINY["refine_steps"], CnfmpConfig.refine_learning_rate)
+    assert CnfmpConfig.refine_learning_rate != settings["refine_learning_rate"]
     assert {k: v for k, v in after.items() if k not in settings} == {k: v for k, v in plain.items() if k not in settings}
     assert (tmp_path / "after" / WEIGHTS_FILE).read_bytes() == (tmp_path / "plain" / WEIGHTS_FILE).read_bytes()
     assert "`refine_steps` 3" in (tmp_path / "after" / "README.md").read_text()

@@ -3,7 +3,8 @@
 //! Every served model and the segmenter are loaded before the server listens. Requests are
 //! parsed and checked on the async runtime (`routes`); their Python work (segment, then
 //! predict: `pipeline`) goes through one bounded queue to the bridge's single worker thread
-//! (`queue`), so a burst is answered 503 at once instead of queueing without bound. SIGTERM or Ctrl-C stops
+//! (`queue`), so a burst is answered 503 at once instead of queueing without bound; requests
+//! for one model that wait together run as one batch, their objects fitted together. SIGTERM or Ctrl-C stops
 //! accepting connections, lets in-flight requests finish, and exits 0.
 
 pub mod api;

@@ -197,14 +197,14 @@ class CnfmpConfig(MotionConfig):
     search_pool: int = 2048
     #: Candidates of the cheap search scored on the image: random simplex points (the best of
     #: the pool, plus every training demonstration's weights and the simplex vertices).
-    search_candidates: int = 96
+    search_candidates: int = 24
     #: Pixels of an object's dilated mask the cheap search scores candidates on.
     search_pixels: int = 128
     #: Best candidates refined by gradient steps (multi-start).
     search_starts: int = 4
     #: Adam steps on the simplex logits per start, and their learning rate.
-    refine_steps: int = 20
-    refine_learning_rate: float = 0.2
+    refine_steps: int = 5
+    refine_learning_rate: float = 0.05
     #: The refinement reads each object's appearance from a grid with this many samples per
     #: field pixel along each axis, baked once per object and scene, instead of evaluating its
     #: network at every step (most of a step's cost); 0 evaluates the network. Inference only:
