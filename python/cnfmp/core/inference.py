@@ -252,37 +252,45 @@ class Predictor:
         """:meth:`predict` for several prepared scenes (:meth:`prepare`) at once, their
         objects fitted together (:meth:`infer_scenes`); each result is what :meth:`predict`
         gives for that scene and seed alone, except "seconds"'s "infer", the whole batch's fit."""
-        c = self.config
         started = time.perf_counter()
-        inferred_all = self.infer_scenes(scenes, seeds)
+        inferred = self.infer_scenes(scenes, seeds)
         infer_s = time.perf_counter() - started
-        results = []
-        for inputs, (weights, mse) in zip(scenes, inferred_all):
-            decoding = time.perf_counter()
-            present = torch.from_numpy(inputs.present)
-            with torch.no_grad():
-                latents = self.model.latents(weights[None], present[None])
-                anchors = torch.from_numpy(inputs.centre)[None]
-                shading = torch.from_numpy(inputs.shading)[None]
-                cues = torch.from_numpy(inputs.tilt_cues)[None]
-                outputs = self.model.motion(self.times, latents, present[None], anchors, shading,
-                                            cues)[0].numpy().astype(np.float64)
-            trajectory = decode_trajectory(outputs, c)
-            decoded = time.perf_counter()
-            fit = self.scene_fit(latents, torch.from_numpy(inputs.colour), present,
-                                 torch.from_numpy(inputs.rgb.reshape(-1, 3)), inputs.masks, anchors)
-            results.append({"trajectory": trajectory, "weights": weights.numpy(), "present": inputs.present,
-                            "object_mse": mse, "object_psnr_db": [None if m is None else psnr_db(m) for m in mse],
-                            **fit, "seconds": {"infer": infer_s, "decode": decoded - decoding}})
-        return results
+        if len(scenes) == 1:  # one scene: its objects' scene fits share the pool
+            return [self._finish(scenes[0], *inferred[0], infer_s, _fitting_pool().map)]
+        # Several: each scene is finished on a pool thread, its objects one after another.
+        return list(_fitting_pool().map(lambda k: self._finish(scenes[k], *inferred[k], infer_s, map),
+                                        range(len(scenes))))
 
-    def scene_fit(self, latents, colour, present, rgb, coarse_masks, anchors) -> dict:
+    def _finish(self, inputs: core_data.SceneInputs, weights: torch.Tensor, mse: list[float | None],
+                infer_s: float, map_objects) -> dict:
+        """The result of :meth:`predict` for a scene whose objects are fitted (weights (N, K),
+        per-slot MSE): its trajectory and the scene fit's confidences, the objects rendered
+        with `map_objects`."""
+        decoding = time.perf_counter()
+        present = torch.from_numpy(inputs.present)
+        with torch.no_grad():
+            latents = self.model.latents(weights[None], present[None])
+            anchors = torch.from_numpy(inputs.centre)[None]
+            shading = torch.from_numpy(inputs.shading)[None]
+            cues = torch.from_numpy(inputs.tilt_cues)[None]
+            outputs = self.model.motion(self.times, latents, present[None], anchors, shading,
+                                        cues)[0].numpy().astype(np.float64)
+        trajectory = decode_trajectory(outputs, self.config)
+        decoded = time.perf_counter()
+        fit = self.scene_fit(latents, torch.from_numpy(inputs.colour), present,
+                             torch.from_numpy(inputs.rgb.reshape(-1, 3)), inputs.masks, anchors, map_objects)
+        return {"trajectory": trajectory, "weights": weights.numpy(), "present": inputs.present,
+                "object_mse": mse, "object_psnr_db": [None if m is None else psnr_db(m) for m in mse],
+                **fit, "seconds": {"infer": infer_s, "decode": decoded - decoding}}
+
+    def scene_fit(self, latents, colour, present, rgb, coarse_masks, anchors, map_objects=None) -> dict:
         """Whole-image reconstruction PSNR and per-object IoU of the learned masks (argmax of
         the competition) with the coarse masks, at field resolution (`anchors` (1, N, 2): the
-        mask centroids)."""
+        mask centroids; `map_objects` maps the objects' rendering, by default over the fitting
+        pool)."""
         with torch.no_grad():
             scene = self.model.scene(self.coords[None], latents, colour[None], present[None],
-                                     map_objects=_fitting_pool().map, anchors=anchors)
+                                     map_objects=map_objects or _fitting_pool().map, anchors=anchors)
         recon = scene["rgb"][0]
         owner = scene["masks"][0].argmax(dim=0).numpy()
         ious = []
