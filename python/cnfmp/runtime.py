@@ -135,6 +135,38 @@ class _ConfigureOnImport:
 
 
 
+_POOL = None
+
+
+def worker_pool():
+    """Threads for numerics that can run side by side (the objects of a scene, the scenes of
+    a batch): one per core the process may use (``CNFMP_INFERENCE_THREADS`` overrides),
+    created on first use. torch and OpenCV release the GIL inside their kernels, so with one
+    intra-op thread per kernel this is how a process uses its other cores."""
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        workers = int(os.environ.get("CNFMP_INFERENCE_THREADS", 0)) or len(os.sched_getaffinity(0))
+        _POOL = ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="cnfmp-worker")
+    return _POOL
+
+
+def on_every_worker(function) -> None:
+    """Runs `function()` once on each thread of :func:`worker_pool` (a barrier holds every
+    call until all threads have one), so a warm-up pays each thread's first-call costs."""
+    import threading
+
+    pool = worker_pool()
+    barrier = threading.Barrier(pool._max_workers)
+
+    def run(_):
+        barrier.wait()
+        function()
+
+    list(pool.map(run, range(pool._max_workers)))
+
+
 def choose_gl_backend() -> str:
     """Sets MUJOCO_GL, unless the user did, to the first offscreen backend whose library
     loads: EGL, else OSMesa (no display is needed for either). Returns the choice.

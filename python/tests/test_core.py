@@ -276,14 +276,14 @@ def test_predict_api_returns_the_trajectory_schema_and_confidences(trained, tmp_
 def test_fitting_objects_in_parallel_gives_the_sequential_result(trained, demos, monkeypatch):
     from concurrent.futures import ThreadPoolExecutor
 
-    from cnfmp.core import inference
+    from cnfmp import runtime
 
     model, _ = trained
     predictor = Predictor(model)
     results = []
     for workers in (1, 2):
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            monkeypatch.setattr(inference, "_POOL", pool)
+            monkeypatch.setattr(runtime, "_POOL", pool)
             results.append(predictor.predict(demos.images[2], demos.masks[2], seed=3))
     assert np.array_equal(results[0]["weights"], results[1]["weights"])
     assert results[0]["object_mse"] == results[1]["object_mse"]

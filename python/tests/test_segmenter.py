@@ -176,6 +176,31 @@ def test_segment_without_pictures_skips_the_masks_and_overlay():
     assert len(with_pictures["mask_pngs"]) == 2 and with_pictures["overlay_png"].startswith(b"\x89PNG")
 
 
+def test_a_batch_of_segmentations_matches_each_alone_and_a_bad_request_fails_alone():
+    from cnfmp.core import trial
+
+    requests = [dict(image_data=encode_png(scene_image()), prompt="put the red block on the blue plate",
+                     backend_name="film", roles=["target", "destination"], pictures=False)]
+    for seed in (1_000_000, 1_000_001):
+        image, _, info = trial.render("language_pick_place", seed)
+        requests.append(dict(image_data=image, prompt=info["prompt"], backend_name="film",
+                             roles=["target", "destination"], pictures=False))
+    requests.append(dict(requests[1], prompt="put the unicorn on the moon"))
+    requests.append(dict(requests[1], image_data=b"not an image"))
+    alone = []
+    for request in requests:
+        try:
+            alone.append(api.segment(**request))
+        except InputError as err:
+            alone.append(err)
+    together = api.segment_batch(requests)
+    assert isinstance(alone[3], NotGrounded) and isinstance(together[3], NotGrounded)
+    assert isinstance(together[4], InputError) and "not an image" in str(together[4])
+    for one, other in zip(alone[:3], together[:3]):
+        assert one["labels_png"] == other["labels_png"] and one["slot_names"] == other["slot_names"]
+    assert alone[1]["labels_png"] != alone[2]["labels_png"], "the scenes must differ for the check to mean anything"
+
+
 def test_preload_resolves_auto_to_the_shipped_film_backend_and_warms_it():
     assert api.preload("auto") == "film"
     assert api.backend("film") is api.backend("auto"), "auto and its resolved name must share one instance"

@@ -89,6 +89,10 @@ pub struct Segmentation {
     pub slot_names: Vec<String>,
 }
 
+/// A segmentation as Python returns it: the JSON document, the label map, the per-phrase
+/// masks, the overlay and the slot names.
+type RawSegmentation = (String, Vec<u8>, Vec<Vec<u8>>, Vec<u8>, Vec<String>);
+
 /// What `cnfmp segmenter train` asks for.
 #[derive(Debug, Clone)]
 pub struct SegmenterTrainRequest {
@@ -105,31 +109,64 @@ pub struct SegmenterTrainRequest {
 impl Bridge {
     /// Segments `request.image` for `request.prompt` (`cnfmp.segmenter.api.segment`).
     pub fn segment(&self, request: SegmentRequest) -> Result<Segmentation, BridgeError> {
-        let (document, labels_png, mask_pngs, overlay_png, slot_names) = self.call(move |py| {
-            let run = || -> PyResult<_> {
-                let kwargs = kwargs!(py,
-                    image_data = PyBytes::new(py, &request.image),
-                    prompt = request.prompt,
-                    backend_name = request.backend,
-                    weights = request.weights,
-                    roles = request.roles,
-                    pictures = request.pictures,
-                );
-                let result = py.import("cnfmp.segmenter.api")?.call_method("segment", (), Some(&kwargs))?;
-                let dict = result.cast::<pyo3::types::PyDict>()?;
-                Ok((
-                    item(dict, "json")?.extract::<String>()?,
-                    item(dict, "labels_png")?.extract::<Vec<u8>>()?,
-                    item(dict, "mask_pngs")?.extract::<Vec<Vec<u8>>>()?,
-                    item(dict, "overlay_png")?.extract::<Vec<u8>>()?,
-                    item(dict, "slot_names")?.extract::<Vec<String>>()?,
-                ))
+        let mut answers = self.segment_batch(vec![request])?;
+        answers.pop().unwrap_or_else(|| Err(BridgeError::Protocol("cnfmp.segmenter.api.segment_batch answered nothing".into())))
+    }
+
+    /// Segments several images in one call, side by side on Python's worker pool
+    /// (`cnfmp.segmenter.api.segment_batch`). One result per request, in order: a request's
+    /// bad input (or a prompt not grounded) fails that request alone; the outer error is for
+    /// the whole call.
+    pub fn segment_batch(&self, requests: Vec<SegmentRequest>) -> Result<Vec<Result<Segmentation, BridgeError>>, BridgeError> {
+        let count = requests.len();
+        let answers = self.call(move |py| {
+            let run = || -> PyResult<Vec<Result<RawSegmentation, BridgeError>>> {
+                let mut arguments = Vec::with_capacity(count);
+                for request in requests {
+                    arguments.push(kwargs!(py,
+                        image_data = PyBytes::new(py, &request.image),
+                        prompt = request.prompt,
+                        backend_name = request.backend,
+                        weights = request.weights,
+                        roles = request.roles,
+                        pictures = request.pictures,
+                    ));
+                }
+                let answers = py.import("cnfmp.segmenter.api")?.call_method1("segment_batch", (arguments,))?;
+                let mut out = Vec::with_capacity(count);
+                for answer in answers.try_iter()? {
+                    let answer = answer?;
+                    out.push(match answer.cast::<pyo3::types::PyDict>() {
+                        Ok(dict) => Ok((
+                            item(dict, "json")?.extract::<String>()?,
+                            item(dict, "labels_png")?.extract::<Vec<u8>>()?,
+                            item(dict, "mask_pngs")?.extract::<Vec<Vec<u8>>>()?,
+                            item(dict, "overlay_png")?.extract::<Vec<u8>>()?,
+                            item(dict, "slot_names")?.extract::<Vec<String>>()?,
+                        )),
+                        // The request's own exception, returned rather than raised.
+                        Err(_) => Err(BridgeError::python(py, &PyErr::from_value(answer))),
+                    });
+                }
+                Ok(out)
             };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
-        let document = serde_json::from_str(&document)
-            .map_err(|err| BridgeError::Protocol(format!("cnfmp.segmenter.api.segment: {err}")))?;
-        Ok(Segmentation { document, labels_png, mask_pngs, overlay_png, slot_names })
+        if answers.len() != count {
+            return Err(BridgeError::Protocol(format!(
+                "cnfmp.segmenter.api.segment_batch answered {} request(s) of {count}",
+                answers.len()
+            )));
+        }
+        Ok(answers
+            .into_iter()
+            .map(|answer| {
+                let (document, labels_png, mask_pngs, overlay_png, slot_names) = answer?;
+                let document = serde_json::from_str(&document)
+                    .map_err(|err| BridgeError::Protocol(format!("cnfmp.segmenter.api.segment: {err}")))?;
+                Ok(Segmentation { document, labels_png, mask_pngs, overlay_png, slot_names })
+            })
+            .collect())
     }
 
     /// Loads segmenter `backend` (weights from `weights` or its default location) and warms

@@ -117,16 +117,16 @@ struct Found {
     segment_s: f64,
 }
 
-/// Runs a batch of jobs for one model: each job's prompt is segmented (unless its masks came
-/// with it), then every scene is predicted in one call. One result per job, in order; a job's
-/// bad input fails that job alone.
+/// Runs a batch of jobs for one model: the prompts are segmented together (the masks that
+/// came with a request are used as they are), then every scene is predicted in one call. One
+/// result per job, in order; a job's bad input fails that job alone.
 fn run_batch(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob>) -> Vec<PipelineResult> {
     let Some(model_dir) = jobs.first().map(|job| job.model_dir.clone()) else { return Vec::new() };
     let mut scenes = Vec::with_capacity(jobs.len());
-    let found: Vec<Result<(FoundObjects, f64), ApiError>> = jobs
+    let found: Vec<Result<(FoundObjects, f64), ApiError>> = find_objects(bridge, segmenter, jobs)
         .into_iter()
-        .map(|job| {
-            let Found { scene, found, segment_s } = find_objects(bridge, segmenter, job)?;
+        .map(|found| {
+            let Found { scene, found, segment_s } = found?;
             scenes.push(scene);
             Ok((found, segment_s))
         })
@@ -147,26 +147,40 @@ fn run_batch(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob
         .collect()
 }
 
-/// Segments the job's prompt, unless the masks came with the request.
-fn find_objects(bridge: &Bridge, segmenter: &SegmenterChoice, job: PipelineJob) -> Result<Found, ApiError> {
-    let started = Instant::now();
-    let (masks, objects, found) = match job.objects {
-        SceneObjects::Masks(masks) => (masks.png(), masks.objects.clone(), FoundObjects::Given(masks)),
-        SceneObjects::Prompt(prompt) => {
-            let found = bridge.segment(SegmentRequest {
+/// Each job's objects: its masks when they came with the request, else the segmenter's for
+/// its prompt (every prompt of the batch in one call; `segment_s` is that call's time).
+fn find_objects(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob>) -> Vec<Result<Found, ApiError>> {
+    let requests: Vec<SegmentRequest> = jobs
+        .iter()
+        .filter_map(|job| match &job.objects {
+            SceneObjects::Prompt(prompt) => Some(SegmentRequest {
                 image: job.image.clone(),
-                prompt,
+                prompt: prompt.clone(),
                 backend: segmenter.backend.clone(),
                 weights: segmenter.weights.clone(),
-                roles: job.roles,
+                roles: job.roles.clone(),
                 pictures: false,
-            })?;
-            (found.labels_png.clone(), found.slot_names.clone(), FoundObjects::Segmented(found))
-        }
+            }),
+            SceneObjects::Masks(_) => None,
+        })
+        .collect();
+    let started = Instant::now();
+    let segmented = if requests.is_empty() { Ok(Vec::new()) } else { bridge.segment_batch(requests) };
+    let segment_s = started.elapsed().as_secs_f64();
+    let mut segmented = match segmented {
+        Ok(answers) => answers.into_iter(),
+        Err(err) => return jobs.iter().map(|_| Err(ApiError::from(err.clone()))).collect(),
     };
-    let segment_s = match found {
-        FoundObjects::Segmented(_) => started.elapsed().as_secs_f64(),
-        FoundObjects::Given(_) => 0.0,
-    };
-    Ok(Found { scene: SceneToPredict { image: job.image, masks, objects }, found, segment_s })
+    jobs.into_iter()
+        .map(|job| {
+            let (masks, objects, found, seconds) = match job.objects {
+                SceneObjects::Masks(masks) => (masks.png(), masks.objects.clone(), FoundObjects::Given(masks), 0.0),
+                SceneObjects::Prompt(_) => {
+                    let found = segmented.next().unwrap_or(Err(BridgeError::Protocol("a segmentation is missing".into())))?;
+                    (found.labels_png.clone(), found.slot_names.clone(), FoundObjects::Segmented(found), segment_s)
+                }
+            };
+            Ok(Found { scene: SceneToPredict { image: job.image, masks, objects }, found, segment_s: seconds })
+        })
+        .collect()
 }

@@ -13,13 +13,11 @@ networks, is its confidence signal.
 
 from __future__ import annotations
 
-import os
 import time
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 import torch
 
+from cnfmp import runtime
 from cnfmp.core import data as core_data
 from cnfmp.core.adam import Adam
 from cnfmp.core.layers import pixel_coords
@@ -28,20 +26,9 @@ from cnfmp.core.motion import decode_trajectory, output_times
 from cnfmp.errors import InputError
 
 
-_POOL: ThreadPoolExecutor | None = None
 #: How far (image coordinates in [-1, 1]; 0.1 is 3 px at 64 px) the baked appearance reaches
 #: beyond the template coordinates of the refinement's starts.
 BAKE_MARGIN = 0.1
-
-
-def _fitting_pool() -> ThreadPoolExecutor:
-    """Threads that fit a scene's objects in parallel, one per core the process may use
-    (``CNFMP_INFERENCE_THREADS`` overrides); created on first use."""
-    global _POOL
-    if _POOL is None:
-        workers = int(os.environ.get("CNFMP_INFERENCE_THREADS", 0)) or len(os.sched_getaffinity(0))
-        _POOL = ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="cnfmp-fit")
-    return _POOL
 
 
 def psnr_db(mse: float) -> float:
@@ -182,7 +169,7 @@ class Predictor:
         # The objects' objectives share nothing (Adam is per parameter), so each object is
         # fitted on its own thread: torch releases the GIL inside its kernels, and with one
         # intra-op thread per kernel this is how inference uses a second core.
-        fitted = _fitting_pool().map(lambda fit: self._fit_object(scenes[fit[0]], fit[1], fit[2], exact), fits)
+        fitted = runtime.worker_pool().map(lambda fit: self._fit_object(scenes[fit[0]], fit[1], fit[2], exact), fits)
         for (index, slot, _), (slot_weights, slot_mse) in zip(fits, fitted):
             results[index][0][slot], results[index][1][slot] = slot_weights, slot_mse
         return results
@@ -256,9 +243,9 @@ class Predictor:
         inferred = self.infer_scenes(scenes, seeds)
         infer_s = time.perf_counter() - started
         if len(scenes) == 1:  # one scene: its objects' scene fits share the pool
-            return [self._finish(scenes[0], *inferred[0], infer_s, _fitting_pool().map)]
+            return [self._finish(scenes[0], *inferred[0], infer_s, runtime.worker_pool().map)]
         # Several: each scene is finished on a pool thread, its objects one after another.
-        return list(_fitting_pool().map(lambda k: self._finish(scenes[k], *inferred[k], infer_s, map),
+        return list(runtime.worker_pool().map(lambda k: self._finish(scenes[k], *inferred[k], infer_s, map),
                                         range(len(scenes))))
 
     def _finish(self, inputs: core_data.SceneInputs, weights: torch.Tensor, mse: list[float | None],
@@ -290,7 +277,7 @@ class Predictor:
         pool)."""
         with torch.no_grad():
             scene = self.model.scene(self.coords[None], latents, colour[None], present[None],
-                                     map_objects=map_objects or _fitting_pool().map, anchors=anchors)
+                                     map_objects=map_objects or runtime.worker_pool().map, anchors=anchors)
         recon = scene["rgb"][0]
         owner = scene["masks"][0].argmax(dim=0).numpy()
         ious = []

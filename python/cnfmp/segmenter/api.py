@@ -12,6 +12,8 @@ import os
 import cv2
 import numpy as np
 
+from cnfmp import runtime
+from cnfmp.errors import InputError
 from cnfmp.images import decode_image, encode_png
 from cnfmp.segmenter import Segmentation, order_by_roles, phrases, segment as segment_array, task_roles
 from cnfmp.segmenter.backends import load_backend
@@ -28,21 +30,22 @@ def backend(name: str = "auto", weights: str | None = None) -> Backend:
     """The resident backend `name` (weights from `weights` or its default location)."""
     key = (name, None if weights is None else os.path.abspath(os.fspath(weights)))
     if key not in _BACKENDS:
-        loaded = _BACKENDS[key] = load_backend(name, weights)
+        loaded = load_backend(name, weights)
         # What `auto` resolved to is the same backend when asked for by name (a server asks
-        # by the resolved name): one instance, one warm cache.
-        _BACKENDS.setdefault((loaded.name, key[1]), loaded)
+        # by the resolved name), whichever was asked for first: one instance, one warm cache.
+        _BACKENDS[key] = _BACKENDS.setdefault((loaded.name, key[1]), loaded)
     return _BACKENDS[key]
 
 
 def preload(name: str = "auto", weights: str | None = None) -> str:
     """Loads backend `name`, warms it for every canonical phrase of the vocabulary and runs
-    it once on a blank image, so a server's first request pays neither for loading nor for
-    first-call costs. Returns the backend's name."""
+    it once on a blank image on every worker thread, so a server's first request pays
+    neither for loading nor for first-call costs. Returns the backend's name."""
     loaded = backend(name, weights)
     loaded.warm(phrases.canonical_texts())
     blank = encode_png(np.full((128, 128, 3), 128, dtype=np.uint8))
-    segment(blank, "put the red cube on the paper", name, weights, pictures=False)  # the request path, once
+    # The request path, once on every thread a batch's segmentations run on.
+    runtime.on_every_worker(lambda: segment(blank, "put the red cube on the paper", name, weights, pictures=False))
     return loaded.name
 
 
@@ -111,6 +114,25 @@ def segment(image_data: bytes, prompt: str, backend_name: str = "auto", weights:
         "overlay_png": encode_png(draw_overlay(image, result)) if pictures else b"",
         "slot_names": [result.phrases[i].text for i in order],
     }
+
+
+def segment_batch(requests: list[dict]) -> list:
+    """:func:`segment` for several requests at once (a server's batch), side by side on the
+    worker pool (:func:`cnfmp.runtime.worker_pool`).
+
+    Args:
+        requests: one dict of :func:`segment`'s keyword arguments per image.
+
+    Returns one entry per request, in order: what :func:`segment` returns, or the
+    :class:`cnfmp.errors.InputError` that request raised (its bad input fails it alone).
+    """
+    def one(request: dict):
+        try:
+            return segment(**request)
+        except InputError as err:
+            return err
+
+    return list(runtime.worker_pool().map(one, requests))
 
 
 def train(out_dir: str, config_path: str | None, steps: int | None, seed: int | None, scenes_scale: float | None,

@@ -10,6 +10,7 @@ bring paraphrases ("crimson beaker") close to trained phrasings ("red cup").
 from __future__ import annotations
 
 import collections
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -38,19 +39,23 @@ class PhraseEncoder:
         self.encoder = SentenceEncoder(Path(get_model_path()))
         self.cache: collections.OrderedDict[str, torch.Tensor] = collections.OrderedDict()
         self.cache_size = cache_size
+        # A server segments a batch's images on several threads; the cache is shared.
+        self.lock = threading.Lock()
 
     def __call__(self, phrases: list[str]) -> torch.Tensor:
         """P phrases -> (P, 384) float32 unit vectors."""
         keys = [p.strip().lower() for p in phrases]
-        missing = sorted({k for k in keys if k not in self.cache})
-        if missing:
-            for key, vector in zip(missing, self.encoder(missing)):
-                self.cache[key] = vector
-                if len(self.cache) > self.cache_size:
-                    self.cache.popitem(last=False)
-        for key in keys:
-            self.cache.move_to_end(key)
-        return torch.stack([self.cache[k] for k in keys])
+        with self.lock:
+            missing = sorted({k for k in keys if k not in self.cache})
+            found = dict(zip(missing, self.encoder(missing))) if missing else {}
+            for key in keys:
+                if key in self.cache:
+                    found[key] = self.cache[key]
+                    self.cache.move_to_end(key)
+            self.cache.update((key, found[key]) for key in missing)
+            while len(self.cache) > self.cache_size:
+                self.cache.popitem(last=False)
+        return torch.stack([found[k] for k in keys])
 
 
 def _conv(in_channels: int, out_channels: int, stride: int = 1) -> list[nn.Module]:
