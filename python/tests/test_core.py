@@ -724,3 +724,23 @@ def test_the_inference_adam_steps_as_torch_adam_does():
             ((param - target) ** 4).sum().backward()
             optimiser.step()
     assert torch.equal(ours, theirs) and not torch.equal(ours, torch.zeros(4, 5))
+
+
+def test_every_shipped_recipe_and_its_quick_overlay_build_a_valid_config():
+    """The recipes `make models` and `cnfmp benchmark table1` train with must load, as the
+    shipped models' config.json must (a rule of check() once refused search_pool 0, which the
+    recipes use, only in the Table I benchmark's trainings)."""
+    import glob
+
+    repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    recipes = sorted(glob.glob(os.path.join(repo, "configs", "core", "*.json")))
+    assert len(recipes) == 5
+    for recipe in recipes:
+        for layers in ([recipe], [recipe, os.path.join(repo, "configs", "quick", "cnfmp.json")]):
+            values, after, source = training.read_configs(layers)
+            config = CnfmpConfig(**values)
+            config.check(source)
+            training._shipped_config(config, after, source)
+    for model in glob.glob(os.path.join(repo, "models", "*", CONFIG_FILE)):
+        if json.load(open(model)).get("model_type") == "cnfmp":
+            load_model(os.path.dirname(model))

@@ -193,7 +193,7 @@ class CnfmpConfig(MotionConfig):
     #: Random simplex points drawn per object, ranked by the centre prior alone (where each
     #: would put the object's centre against its mask's centroid: no image is read, so
     #: thousands cost well under a millisecond); the best `search_candidates` of them go on
-    #: to the image search. At most `search_candidates` draws exactly those.
+    #: to the image search. At most `search_candidates` (0, say) draws exactly those.
     search_pool: int = 2048
     #: Candidates of the cheap search scored on the image: random simplex points (the best of
     #: the pool, plus every training demonstration's weights and the simplex vertices).
@@ -228,7 +228,7 @@ class CnfmpConfig(MotionConfig):
         super().check(source)
         positive = ["field_resolution", "latent_dim", "num_endpoints", "field_width", "field_layers",
                     "pixels_per_object", "uniform_pixels",
-                    "gating_width", "time_samples", "batch_demos", "draws", "search_pool", "search_candidates",
+                    "gating_width", "time_samples", "batch_demos", "draws", "search_candidates",
                     "search_starts", "search_pixels", "inference_pixels"]
         for name in positive:
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
@@ -236,7 +236,7 @@ class CnfmpConfig(MotionConfig):
         for name in ["learning_rate", "latent_learning_rate"]:
             if not getattr(self, name) > 0:
                 raise InputError(f"{source}: {name} must be > 0, got {getattr(self, name)!r}")
-        for name in ["task_objects", "texels_per_pixel"]:
+        for name in ["task_objects", "texels_per_pixel", "search_pool"]:
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
                 raise InputError(f"{source}: {name} must be a whole number >= 0, got {getattr(self, name)!r}")
         if not (isinstance(self.residual_grid_pixels, (int, float)) and self.residual_grid_pixels >= 0):
