@@ -8,6 +8,7 @@ use pyo3::types::PyBytes;
 use serde::{Deserialize, Serialize};
 
 use crate::error::BridgeError;
+use crate::sim::{batch_items, one_per_item};
 use crate::worker::Bridge;
 
 /// What `cnfmp train` asks for.
@@ -219,26 +220,11 @@ impl Bridge {
                     .collect();
                 let kwargs = kwargs!(py, model_dir = model_dir, scenes = scenes);
                 let answers = py.import("cnfmp.core.api")?.call_method("predict_batch", (), Some(&kwargs))?;
-                let mut out = Vec::new();
-                for answer in answers.try_iter()? {
-                    let answer = answer?;
-                    out.push(match answer.extract::<String>() {
-                        Ok(json) => Ok(json),
-                        // The scene's own exception, returned rather than raised.
-                        Err(_) => Err(BridgeError::python(py, &PyErr::from_value(answer))),
-                    });
-                }
-                Ok(out)
+                batch_items(py, &answers, |answer| answer.extract::<String>())
             };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
-        if answers.len() != count {
-            return Err(BridgeError::Protocol(format!(
-                "cnfmp.core.api.predict_batch answered {} scene(s) of {count}",
-                answers.len()
-            )));
-        }
-        Ok(answers
+        Ok(one_per_item(answers, count, "cnfmp.core.api.predict_batch")?
             .into_iter()
             .map(|answer| {
                 let json = answer?;

@@ -8,7 +8,7 @@ use pyo3::types::PyBytes;
 use serde::{Deserialize, Serialize};
 
 use crate::error::BridgeError;
-use crate::sim::item;
+use crate::sim::{batch_items, item, one_per_item};
 use crate::worker::Bridge;
 
 /// What `cnfmp segment` (and prediction from a prompt) asks for.
@@ -133,32 +133,20 @@ impl Bridge {
                     ));
                 }
                 let answers = py.import("cnfmp.segmenter.api")?.call_method1("segment_batch", (arguments,))?;
-                let mut out = Vec::with_capacity(count);
-                for answer in answers.try_iter()? {
-                    let answer = answer?;
-                    out.push(match answer.cast::<pyo3::types::PyDict>() {
-                        Ok(dict) => Ok((
-                            item(dict, "json")?.extract::<String>()?,
-                            item(dict, "labels_png")?.extract::<Vec<u8>>()?,
-                            item(dict, "mask_pngs")?.extract::<Vec<Vec<u8>>>()?,
-                            item(dict, "overlay_png")?.extract::<Vec<u8>>()?,
-                            item(dict, "slot_names")?.extract::<Vec<String>>()?,
-                        )),
-                        // The request's own exception, returned rather than raised.
-                        Err(_) => Err(BridgeError::python(py, &PyErr::from_value(answer))),
-                    });
-                }
-                Ok(out)
+                batch_items(py, &answers, |answer| {
+                    let dict = answer.cast::<pyo3::types::PyDict>()?;
+                    Ok((
+                        item(dict, "json")?.extract::<String>()?,
+                        item(dict, "labels_png")?.extract::<Vec<u8>>()?,
+                        item(dict, "mask_pngs")?.extract::<Vec<Vec<u8>>>()?,
+                        item(dict, "overlay_png")?.extract::<Vec<u8>>()?,
+                        item(dict, "slot_names")?.extract::<Vec<String>>()?,
+                    ))
+                })
             };
             run().map_err(|err| BridgeError::python(py, &err))
         })?;
-        if answers.len() != count {
-            return Err(BridgeError::Protocol(format!(
-                "cnfmp.segmenter.api.segment_batch answered {} request(s) of {count}",
-                answers.len()
-            )));
-        }
-        Ok(answers
+        Ok(one_per_item(answers, count, "cnfmp.segmenter.api.segment_batch")?
             .into_iter()
             .map(|answer| {
                 let (document, labels_png, mask_pngs, overlay_png, slot_names) = answer?;

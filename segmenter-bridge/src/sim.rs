@@ -80,6 +80,35 @@ pub(crate) fn item<'py>(dict: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<
     dict.get_item(key)?.ok_or_else(|| pyo3::exceptions::PyKeyError::new_err(key.to_owned()))
 }
 
+/// The answers of a Python batch call that returns one entry per item: its value, read with
+/// `read`, or the item's own exception (returned, not raised), which fails that item alone.
+pub(crate) fn batch_items<'py, T>(
+    py: Python<'py>,
+    answers: &Bound<'py, PyAny>,
+    read: impl Fn(&Bound<'py, PyAny>) -> PyResult<T>,
+) -> PyResult<Vec<Result<T, BridgeError>>> {
+    let exception = py.get_type::<pyo3::exceptions::PyBaseException>();
+    let mut items = Vec::new();
+    for answer in answers.try_iter()? {
+        let answer = answer?;
+        items.push(if answer.is_instance(&exception)? {
+            Err(BridgeError::python(py, &PyErr::from_value(answer)))
+        } else {
+            Ok(read(&answer)?)
+        });
+    }
+    Ok(items)
+}
+
+/// `answers` of the batch call `call`, refused unless there is one per item asked for.
+pub(crate) fn one_per_item<T>(answers: Vec<T>, expected: usize, call: &str) -> Result<Vec<T>, BridgeError> {
+    if answers.len() == expected {
+        Ok(answers)
+    } else {
+        Err(BridgeError::Protocol(format!("{call} answered {} item(s) of {expected}", answers.len())))
+    }
+}
+
 pub(crate) fn vector(dict: &Bound<'_, PyDict>, key: &str) -> PyResult<Array1<f64>> {
     Ok(item(dict, key)?.extract::<PyReadonlyArray1<f64>>()?.as_array().to_owned())
 }
