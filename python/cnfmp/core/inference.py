@@ -154,8 +154,8 @@ class Predictor:
     def infer_scenes(self, scenes: list[core_data.SceneInputs], seeds: list[int],
                      exact: bool = False) -> list[tuple[torch.Tensor, list[float | None]]]:
         """:meth:`infer_scene` for several scenes at once, each with its own seed: every
-        present object of every scene is one fit, and the fits run together on the fitting
-        pool, so a batch keeps every core busy where one scene's few objects would not. Each
+        present object of every scene is one fit, and the fits run together on the worker
+        pool (:func:`cnfmp.runtime.worker_pool`), so a batch keeps every core busy where one scene's few objects would not. Each
         scene's result is the same as :meth:`infer_scene` gives it alone."""
         c = self.config
         fits = []
@@ -273,7 +273,7 @@ class Predictor:
     def scene_fit(self, latents, colour, present, rgb, coarse_masks, anchors, map_objects=None) -> dict:
         """Whole-image reconstruction PSNR and per-object IoU of the learned masks (argmax of
         the competition) with the coarse masks, at field resolution (`anchors` (1, N, 2): the
-        mask centroids; `map_objects` maps the objects' rendering, by default over the fitting
+        mask centroids; `map_objects` maps the objects' rendering, by default over the worker
         pool)."""
         with torch.no_grad():
             scene = self.model.scene(self.coords[None], latents, colour[None], present[None],
