@@ -134,7 +134,8 @@ fn run_batch(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob
     let infer_started = Instant::now();
     let mut predictions = match bridge.core_predict_batch(&model_dir, scenes) {
         Ok(predictions) => predictions.into_iter(),
-        Err(err) => return found.into_iter().map(|_| Err(ApiError::from(err.clone()))).collect(),
+        // A job that already failed keeps its own error; the others share the call's.
+        Err(err) => return found.into_iter().map(|found| found.and(Err(ApiError::from(err.clone())))).collect(),
     };
     let infer_s = infer_started.elapsed().as_secs_f64();
     found
@@ -167,16 +168,18 @@ fn find_objects(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<Pipeline
     let started = Instant::now();
     let segmented = if requests.is_empty() { Ok(Vec::new()) } else { bridge.segment_batch(requests) };
     let segment_s = started.elapsed().as_secs_f64();
-    let mut segmented = match segmented {
-        Ok(answers) => answers.into_iter(),
-        Err(err) => return jobs.iter().map(|_| Err(ApiError::from(err.clone()))).collect(),
+    // When the whole call fails, every prompted job gets its error; jobs with masks go on.
+    let (mut segmented, call_error) = match segmented {
+        Ok(answers) => (answers.into_iter(), None),
+        Err(err) => (Vec::new().into_iter(), Some(err)),
     };
     jobs.into_iter()
         .map(|job| {
             let (masks, objects, found, seconds) = match job.objects {
                 SceneObjects::Masks(masks) => (masks.png(), masks.objects.clone(), FoundObjects::Given(masks), 0.0),
                 SceneObjects::Prompt(_) => {
-                    let found = segmented.next().unwrap_or(Err(BridgeError::Protocol("a segmentation is missing".into())))?;
+                    let missing = || Err(call_error.clone().unwrap_or_else(|| BridgeError::Protocol("a segmentation is missing".into())));
+                    let found = segmented.next().unwrap_or_else(missing)?;
                     (found.labels_png.clone(), found.slot_names.clone(), FoundObjects::Segmented(found), segment_s)
                 }
             };
