@@ -203,13 +203,13 @@ class CnfmpConfig(MotionConfig):
     #: Best candidates refined by gradient steps (multi-start).
     search_starts: int = 4
     #: Adam steps on the simplex logits per start, and their learning rate.
-    refine_steps: int = 5
+    refine_steps: int = 3
     refine_learning_rate: float = 0.05
     #: The refinement reads each object's appearance from a grid with this many samples per
     #: field pixel along each axis, baked once per object and scene, instead of evaluating its
     #: network at every step (most of a step's cost); 0 evaluates the network. Inference only:
     #: training's motion refit always evaluates the network.
-    texels_per_pixel: int = 2
+    texels_per_pixel: int = 1
     #: The refinement evaluates each object's deformation residual (low-frequency) on a grid
     #: this many field pixels apart over the fitted pixels and interpolates it, instead of at
     #: every pixel; 0 evaluates it at every pixel. Inference only, like `texels_per_pixel`.

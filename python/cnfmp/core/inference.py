@@ -157,6 +157,14 @@ class Predictor:
         present object of every scene is one fit, and the fits run together on the worker
         pool (:func:`cnfmp.runtime.worker_pool`), so a batch keeps every core busy where one scene's few objects would not. Each
         scene's result is the same as :meth:`infer_scene` gives it alone."""
+        return [(weights, mse) for weights, mse, _ in self._fit_scenes(scenes, seeds, exact, render=False)]
+
+    def _fit_scenes(self, scenes: list[core_data.SceneInputs], seeds: list[int], exact: bool,
+                    render: bool) -> list[tuple[torch.Tensor, list[float | None], dict[int, tuple]]]:
+        """:meth:`infer_scenes`, plus per scene the whole-image rendering of each fitted object
+        (slot -> what its field returns at every field pixel) when `render`: a fit's thread
+        renders its object for the scene fit too, so a scene's objects render side by side
+        with no second round on the pool."""
         c = self.config
         fits = []
         for index, (inputs, seed) in enumerate(zip(scenes, seeds)):
@@ -164,20 +172,24 @@ class Predictor:
             # Random draws in slot order (reproducible whatever runs in parallel below).
             fits += [(index, slot, self._draw(np.flatnonzero(inputs.dilated[slot].reshape(-1)), rng))
                      for slot in range(c.num_objects) if inputs.present[slot]]
-        results = [(torch.full((c.num_objects, c.num_endpoints), 1.0 / c.num_endpoints), [None] * c.num_objects)
+        results = [(torch.full((c.num_objects, c.num_endpoints), 1.0 / c.num_endpoints), [None] * c.num_objects, {})
                    for _ in scenes]
         # The objects' objectives share nothing (Adam is per parameter), so each object is
         # fitted on its own thread: torch releases the GIL inside its kernels, and with one
         # intra-op thread per kernel this is how inference uses a second core.
-        fitted = runtime.worker_pool().map(lambda fit: self._fit_object(scenes[fit[0]], fit[1], fit[2], exact), fits)
-        for (index, slot, _), (slot_weights, slot_mse) in zip(fits, fitted):
+        fitted = runtime.worker_pool().map(
+            lambda fit: self._fit_object(scenes[fit[0]], fit[1], fit[2], exact, render), fits)
+        for (index, slot, _), (slot_weights, slot_mse, rendered) in zip(fits, fitted):
             results[index][0][slot], results[index][1][slot] = slot_weights, slot_mse
+            if rendered is not None:
+                results[index][2][slot] = rendered
         return results
 
     def _fit_object(self, inputs: core_data.SceneInputs, slot: int, draws: tuple[np.ndarray, np.ndarray],
-                    exact: bool) -> tuple[torch.Tensor, float]:
+                    exact: bool, render: bool = False) -> tuple[torch.Tensor, float, tuple | None]:
         """The search and refinement of one present object (slot `slot` of the scene `inputs`,
-        with its draws of :meth:`_draw`): its simplex weights (K,) and reconstruction MSE."""
+        with its draws of :meth:`_draw`): its simplex weights (K,), reconstruction MSE and,
+        with `render`, what its field returns at every field pixel for those weights (else None)."""
         c = self.config
         rgb = torch.from_numpy(inputs.rgb.reshape(-1, 3))
         colour, centre = torch.from_numpy(inputs.colour[slot]), torch.from_numpy(inputs.centre[slot])
@@ -205,11 +217,19 @@ class Predictor:
         # refinement can end worse than it began. The choice is therefore made, with the
         # networks, among the search's starts, each start's best iterate (by the
         # refinement's own loss) and its last one: the fit never ends worse than its search.
+        # A start whose first iterate stayed its best, or whose last iterate is its best, adds
+        # the same logits twice: each is scored once (the first of equal rows wins either way).
+        last = start.detach()
+        new_best = ~(best_seen == searched).all(dim=1)
+        new_last = ~(last == best_seen).all(dim=1)
         with torch.no_grad():
-            candidates = torch.cat([searched, best_seen, start.detach()])
+            candidates = torch.cat([searched, best_seen[new_best], last[new_last]])
             final, errors = self._object_loss(slot, candidates, *fitting)
             best = int(torch.argmin(final))
-            return self.weights_of(candidates[best]), float(errors[best])
+            weights = self.weights_of(candidates[best])
+            rendered = (self.model.objects[slot](self.coords[None], self.model.object_latent(slot, weights[None]),
+                                                 colour[None], anchor=centre.expand(1, -1)) if render else None)
+            return weights, float(errors[best]), rendered
 
     def prepare(self, image: np.ndarray, labels: np.ndarray) -> core_data.SceneInputs:
         """A scene's inputs for :meth:`predict_prepared`: image (H, W, 3) uint8 and labels
@@ -240,7 +260,7 @@ class Predictor:
         objects fitted together (:meth:`infer_scenes`); each result is what :meth:`predict`
         gives for that scene and seed alone, except "seconds"'s "infer", the whole batch's fit."""
         started = time.perf_counter()
-        inferred = self.infer_scenes(scenes, seeds)
+        inferred = self._fit_scenes(scenes, seeds, exact=False, render=True)
         infer_s = time.perf_counter() - started
         if len(scenes) == 1:  # one scene: its objects' scene fits share the pool
             return [self._finish(scenes[0], *inferred[0], infer_s, runtime.worker_pool().map)]
@@ -249,10 +269,10 @@ class Predictor:
                                         range(len(scenes))))
 
     def _finish(self, inputs: core_data.SceneInputs, weights: torch.Tensor, mse: list[float | None],
-                infer_s: float, map_objects) -> dict:
+                rendered: dict[int, tuple], infer_s: float, map_objects) -> dict:
         """The result of :meth:`predict` for a scene whose objects are fitted (weights (N, K),
-        per-slot MSE): its trajectory and the scene fit's confidences, the objects rendered
-        with `map_objects`."""
+        per-slot MSE, the fitted objects' renderings of :meth:`_fit_scenes`): its trajectory
+        and the scene fit's confidences, any other slot rendered with `map_objects`."""
         decoding = time.perf_counter()
         present = torch.from_numpy(inputs.present)
         with torch.no_grad():
@@ -265,19 +285,26 @@ class Predictor:
         trajectory = decode_trajectory(outputs, self.config)
         decoded = time.perf_counter()
         fit = self.scene_fit(latents, torch.from_numpy(inputs.colour), present,
-                             torch.from_numpy(inputs.rgb.reshape(-1, 3)), inputs.masks, anchors, map_objects)
+                             torch.from_numpy(inputs.rgb.reshape(-1, 3)), inputs.masks, anchors, map_objects, rendered)
         return {"trajectory": trajectory, "weights": weights.numpy(), "present": inputs.present,
                 "object_mse": mse, "object_psnr_db": [None if m is None else psnr_db(m) for m in mse],
                 **fit, "seconds": {"infer": infer_s, "decode": decoded - decoding}}
 
-    def scene_fit(self, latents, colour, present, rgb, coarse_masks, anchors, map_objects=None) -> dict:
+    def scene_fit(self, latents, colour, present, rgb, coarse_masks, anchors, map_objects=None,
+                  rendered: dict[int, tuple] | None = None) -> dict:
         """Whole-image reconstruction PSNR and per-object IoU of the learned masks (argmax of
         the competition) with the coarse masks, at field resolution (`anchors` (1, N, 2): the
-        mask centroids; `map_objects` maps the objects' rendering, by default over the worker
-        pool)."""
+        mask centroids; `rendered`: slots already rendered for these latents; `map_objects`
+        maps the other objects' rendering, by default over the worker pool)."""
+        rendered = dict(rendered or {})
+        missing = [slot for slot in range(self.config.num_objects) if slot not in rendered]
         with torch.no_grad():
-            scene = self.model.scene(self.coords[None], latents, colour[None], present[None],
-                                     map_objects=map_objects or runtime.worker_pool().map, anchors=anchors)
+            drawn = (map_objects or runtime.worker_pool().map)(
+                lambda slot: self.model.objects[slot](self.coords[None], latents[:, slot], colour[None, slot],
+                                                      anchor=anchors[:, slot]), missing)
+            rendered.update(zip(missing, drawn))
+            scene = self.model.composite([rendered[slot] for slot in range(self.config.num_objects)], present[None],
+                                         (self.bg_rgb, self.bg_logit))
         recon = scene["rgb"][0]
         owner = scene["masks"][0].argmax(dim=0).numpy()
         ious = []

@@ -310,15 +310,22 @@ class CnfmpModel(nn.Module):
         (B, N + 1, P) object logits then background (absent objects at -inf), "masks":
         (B, N + 1, P) softmax of the logits, "canonical": (B, N, P, 2) template coordinates}``.
         """
-        rgbs, logits, canonicals = [], [], []
         rendered = map_objects(lambda slot: self.objects[slot](coords, latents[:, slot], colours[:, slot], progress,
                                                                anchor=slot_anchor(anchors, slot)),
                                range(len(self.objects)))
+        return self.composite(list(rendered), present, self.background_terms(coords, progress))
+
+    @staticmethod
+    def composite(rendered: list[tuple], present: torch.Tensor, background: tuple) -> dict:
+        """The scene of :meth:`scene` from its parts: per slot the (rgb (B, P, 3), mask logit
+        (B, P), canonical (B, P, 2)) an object field returns, presence (B, N) bool, and the
+        background's (rgb (B, P, 3), logit (B, P))."""
+        rgbs, logits, canonicals = [], [], []
         for slot, (rgb, logit, canonical) in enumerate(rendered):
             rgbs.append(rgb)
             logits.append(torch.where(present[:, slot, None], logit, torch.full_like(logit, -1e4)))
             canonicals.append(canonical)
-        bg_rgb, bg_logit = self.background_terms(coords, progress)
+        bg_rgb, bg_logit = background
         all_logits = torch.stack(logits + [bg_logit], dim=1)
         masks = torch.softmax(all_logits, dim=1)
         all_rgb = torch.stack(rgbs + [bg_rgb], dim=1)
