@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+use base64::Engine;
+use cnfmp::commands::demo::{ServerProcess, http_client};
 use cnfmp::images;
 use cnfmp::trajectory::Trajectory;
 use cnfmp::trajectory::resample::{ResampleTarget, resample};
@@ -438,4 +440,23 @@ fn a_lerobot_recording_is_annotated_trained_and_predicted() {
     let from_prompt = dir.path().join("from_prompt.json");
     ok(&cnfmp(&["predict", "--model", arg(&model), "--image", arg(&scene.join("image.png")), "--prompt", &prompt, "--out", arg(&from_prompt)]), "predict --prompt");
     assert_eq!(Trajectory::load(&from_prompt).unwrap().frames.len(), predicted.frames.len());
+
+    // Served over HTTP (the only model directory under the folder), the answer carries the
+    // recorded form as well, the same as predict's file.
+    let mut server = ServerProcess::spawn(Path::new(env!("CARGO_BIN_EXE_cnfmp")), dir.path(), &[]).unwrap();
+    let base = server.base_url(Duration::from_secs(300)).expect("the server listens within 300 s");
+    let encode = |name: &str| base64::engine::general_purpose::STANDARD.encode(std::fs::read(scene.join(name)).unwrap());
+    let objects: Value = serde_json::from_slice(&std::fs::read(scene.join("objects.json")).unwrap()).unwrap();
+    let request = serde_json::json!({"image_base64": encode("image.png"), "masks_base64": encode("masks.png"), "objects": objects});
+    let mut response = http_client()
+        .post(format!("{base}/v1/trajectories"))
+        .header("Content-Type", "application/json")
+        .send(request.to_string().as_bytes())
+        .expect("the server answers");
+    let status = response.status().as_u16();
+    let answer: Value = serde_json::from_str(&response.body_mut().read_to_string().unwrap()).unwrap();
+    assert_eq!(status, 200, "{answer}");
+    assert_eq!(answer["recorded"], *recorded, "the HTTP answer's recorded frames are predict's");
+    assert_eq!(answer["frames"].as_array().unwrap().len(), predicted.frames.len());
+    assert!(server.stop(Duration::from_secs(60)), "the server exits 0 on SIGTERM");
 }
