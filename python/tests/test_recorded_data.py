@@ -14,6 +14,7 @@ from PIL import Image
 
 from cnfmp import geometry
 from cnfmp.core import alignment, api, data as core_data, training
+from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.data import annotate, generate, recorded
 from cnfmp.errors import InputError
 from cnfmp.images import encode_png
@@ -314,3 +315,48 @@ def test_only_roles_that_tell_the_slots_apart_go_into_the_model(roles, kept):
     demos = core_data.Demonstrations("lab", 10.0, np.zeros((1, 8, 8, 3), np.uint8), masks, [["a", "b"]],
                                      [trajectory], [-1], ["put a on b"], roles=[roles])
     assert fit_config_to_data(CnfmpConfig(), demos).object_roles == kept
+
+
+def test_a_small_camera_and_two_demonstration_lengths_train_with_the_default_config(tmp_path):
+    """A 160x120 image camera (not video) at 10 fps, two demonstrations of different lengths:
+    annotated, then trained with the default config (only shortened) and predicted at that size."""
+    import cv2
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    width, height = 160, 120
+    root = tmp_path / "small_camera"
+    spec = {"dtype": "image", "shape": (height, width, 3), "names": ["height", "width", "channels"]}
+    dataset = LeRobotDataset.create(repo_id="lab/small_camera", fps=10, root=str(root), use_videos=False, features={
+        "observation.images.top": spec, "action": {"dtype": "float32", "shape": (7,), "names": MOTION_NAMES}})
+    lengths = []
+    for seed, speed in [(320, 1.0), (321, 1.6)]:
+        episode = generate.simulate_episode("language_pick_place", seed)
+        action = _stretch(_motion(episode["action"]), speed)
+        frame = np.full((height, width, 3), 128, np.uint8)
+        frame[:, 20:140] = cv2.resize(episode["images"][0], (height, height), interpolation=cv2.INTER_AREA)
+        for row in action:
+            dataset.add_frame({"observation.images.top": frame, "action": row.astype(np.float32),
+                               "task": episode["prompt"]})
+        dataset.save_episode()
+        lengths.append(len(action))
+    dataset.finalize()
+    assert lengths[1] > 1.4 * lengths[0]
+
+    annotated_dir = str(tmp_path / "small_camera_masks")
+    report = json.loads(annotate.annotate(str(root), annotated_dir, progress=False))
+    assert report["annotated"] == 2 and report["camera"] == "observation.images.top"
+    shorter = tmp_path / "shorter.json"  # the default config, fewer steps so that a test can run it
+    shorter.write_text(json.dumps({"steps": 30, "motion_refit_steps": 10}))
+    model_dir = str(tmp_path / "model")
+    trained = json.loads(training.train(annotated_dir, model_dir, [str(shorter)], progress=False))
+    assert trained["demos"] == 2
+    config = json.loads(open(os.path.join(model_dir, "config.json")).read())
+    assert config["field_resolution"] == CnfmpConfig.field_resolution and config["num_endpoints"] == CnfmpConfig.num_endpoints
+    demos = core_data.load_demonstrations(annotated_dir)
+    assert demos.images.shape == (2, height, width, 3)
+    prediction = json.loads(api.predict(model_dir, encode_png(demos.images[1]), encode_png(demos.masks[1]),
+                                        demos.objects[1]))
+    # Both demonstrations are aligned to one duration, between their own.
+    assert abs(prediction["frames"][-1]["t"] - config["duration_s"]) < 0.2
+    assert (lengths[0] - 1) / 10 - 0.2 <= config["duration_s"] <= (lengths[1] - 1) / 10 + 0.2
+    assert np.isfinite([f["position"] for f in prediction["frames"]]).all()
