@@ -217,13 +217,8 @@ class Predictor:
         # refinement can end worse than it began. The choice is therefore made, with the
         # networks, among the search's starts, each start's best iterate (by the
         # refinement's own loss) and its last one: the fit never ends worse than its search.
-        # A start whose first iterate stayed its best, or whose last iterate is its best, adds
-        # the same logits twice: each is scored once (the first of equal rows wins either way).
-        last = start.detach()
-        new_best = ~(best_seen == searched).all(dim=1)
-        new_last = ~(last == best_seen).all(dim=1)
         with torch.no_grad():
-            candidates = torch.cat([searched, best_seen[new_best], last[new_last]])
+            candidates = torch.cat([searched, best_seen, start.detach()])
             final, errors = self._object_loss(slot, candidates, *fitting)
             best = int(torch.argmin(final))
             weights = self.weights_of(candidates[best])
