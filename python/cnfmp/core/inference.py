@@ -176,7 +176,9 @@ class Predictor:
                    for _ in scenes]
         # The objects' objectives share nothing (Adam is per parameter), so each object is
         # fitted on its own thread: torch releases the GIL inside its kernels, and with one
-        # intra-op thread per kernel this is how inference uses a second core.
+        # intra-op thread per kernel this is how inference uses a second core. Only in part:
+        # the kernels are small, so the threads wait on each other for the interpreter between
+        # them (two objects: 1.2x, not 2x; docs/experiments.md, "A shorter refinement").
         fitted = runtime.worker_pool().map(
             lambda fit: self._fit_object(scenes[fit[0]], fit[1], fit[2], exact, render), fits)
         for (index, slot, _), (slot_weights, slot_mse, rendered) in zip(fits, fitted):
