@@ -7,19 +7,23 @@ and random points) picks the best few, which Adam refines in parallel (multi-sta
 refinement reads the object's appearance from a grid baked for the scene and interpolates its
 low-frequency deformation residual from a coarse grid, rather than running both networks on
 every pixel at every step (refinement 2-2.5x faster, fitting as well: docs/experiments.md,
-"Faster latent fit: baked grids"). The final reconstruction error of each object, with the
+"Faster latent fit: baked grids"); the search and the whole-image rendering of the scene fit
+interpolate that residual too. The final reconstruction error of each object, with the
 networks, is its confidence signal.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
 from cnfmp import runtime
 from cnfmp.core import data as core_data
 from cnfmp.core.adam import Adam
+from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.layers import pixel_coords
 from cnfmp.core.modeling_cnfmp import BakedAppearance, CnfmpModel, CoarseResidual
 from cnfmp.core.motion import decode_trajectory, output_times
@@ -31,6 +35,31 @@ from cnfmp.errors import InputError
 BAKE_MARGIN = 0.1
 
 
+@dataclass(frozen=True)
+class FittedPixels:
+    """What one object's fit compares: the pixels of its dilated mask that inference reads
+    (in random order, so any first few are a random sample too), and at them the scene's
+    image and the frozen background. P pixels; image coordinates in [-1, 1]."""
+
+    #: (1, P, 2) the pixels' image coordinates.
+    coords: torch.Tensor
+    #: (1, 3) the object's observed colour (median under its coarse mask), in [0, 1].
+    colour: torch.Tensor
+    #: (1, P, 3) and (1, P): the background field's colour and mask logit at the pixels.
+    bg_rgb: torch.Tensor
+    bg_logit: torch.Tensor
+    #: (1, P, 3) the scene's image at the pixels, in [0, 1].
+    target: torch.Tensor
+    #: (1, 2) the centroid of the object's coarse mask.
+    centre: torch.Tensor
+
+    def first(self, count: int) -> "FittedPixels":
+        """The first `count` pixels alone (a random sample of them)."""
+        few = slice(0, count)
+        return FittedPixels(self.coords[:, few], self.colour, self.bg_rgb[:, few], self.bg_logit[:, few],
+                            self.target[:, few], self.centre)
+
+
 def psnr_db(mse: float) -> float:
     """Peak signal-to-noise ratio (dB) of an MSE on [0, 1] images."""
     return float(10.0 * np.log10(1.0 / max(mse, 1e-10)))
@@ -40,15 +69,18 @@ class Predictor:
     """A loaded model ready to predict; holds the pixel grid and the background, which do not
     depend on the scene."""
 
-    def __init__(self, model: CnfmpModel):
+    def __init__(self, model: CnfmpModel, settings: CnfmpConfig | None = None):
+        """`settings`: the model's config with other inference settings (its
+        INFERENCE_FIELDS) to predict with; None: the model's own."""
         self.model = model.eval()
         for p in model.parameters():  # frozen: inference optimises simplex weights only
             p.requires_grad_(False)
-        self.config = model.config
+        self.config = settings or model.config
         self.coords = pixel_coords(self.config.field_resolution)
         with torch.no_grad():
             self.bg_rgb, self.bg_logit = model.background_terms(self.coords[None])
             self.times = torch.from_numpy(output_times(self.config)).float()
+        self.whole_image_residual = self._coarse_residual(self.coords[None])
 
     def weights_of(self, logits: torch.Tensor) -> torch.Tensor:
         """Search logits (..., K) -> weights on the endpoints, a point of the simplex enlarged
@@ -56,22 +88,23 @@ class Predictor:
         m, k = self.config.simplex_margin, logits.shape[-1]
         return (1.0 + m) * torch.softmax(logits, dim=-1) - m / k
 
-    def _object_loss(self, slot: int, logits: torch.Tensor, coords, colour, bg_rgb, bg_logit, target,
-                     centre, baked: BakedAppearance | None = None,
+    def _object_loss(self, slot: int, logits: torch.Tensor, pixels: FittedPixels,
+                     baked: BakedAppearance | None = None,
                      coarse: CoarseResidual | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """Per-candidate objective (C,) of slot `slot` for search logits (C, K): the expert
-        image's MSE plus the weighted centre prior; also returns the MSE alone. With `baked`,
-        the object's appearance is read from that grid instead of its network; with `coarse`,
-        its deformation residual is interpolated from that grid."""
+        """Per-candidate objective (C,) of slot `slot` for search logits (C, K) on `pixels`:
+        the expert image's MSE plus the weighted centre prior; also returns the MSE alone.
+        With `baked`, the object's appearance is read from that grid instead of its network;
+        with `coarse` (built for these pixels), its deformation residual is interpolated
+        from that grid."""
         c = logits.shape[0]
         weights = self.weights_of(logits)
         latent = self.model.object_latent(slot, weights)
-        anchor = centre.expand(c, -1)
-        rgb, logit, _ = self.model.objects[slot](coords.expand(c, -1, -1), latent, colour.expand(c, -1),
+        anchor = pixels.centre.expand(c, -1)
+        rgb, logit, _ = self.model.objects[slot](pixels.coords.expand(c, -1, -1), latent, pixels.colour.expand(c, -1),
                                                  baked=baked, coarse=coarse, anchor=anchor)
-        image = self.model.expert_image(rgb, logit, bg_rgb, bg_logit)
-        mse = ((image - target) ** 2).mean(dim=(1, 2))
-        centre_err = ((self.model.objects[slot].object_centre(latent, anchor) - centre) ** 2).sum(dim=-1)
+        image = self.model.expert_image(rgb, logit, pixels.bg_rgb, pixels.bg_logit)
+        mse = ((image - pixels.target) ** 2).mean(dim=(1, 2))
+        centre_err = ((self.model.objects[slot].object_centre(latent, anchor) - pixels.centre) ** 2).sum(dim=-1)
         return (mse + self.config.centre_prior_weight * centre_err
                 + self.config.weight_prior_weight * self.model.weight_spread(weights), mse)
 
@@ -84,15 +117,16 @@ class Predictor:
             np.ones(c.num_endpoints), size=max(c.search_pool, c.search_candidates))
 
     def _search(self, slot: int, pixels: np.ndarray, random_points: np.ndarray, rgb: torch.Tensor,
-                colour: torch.Tensor, centre: torch.Tensor) -> tuple[torch.Tensor, tuple]:
-        """The cheap search of slot `slot` (with the draws of :meth:`_draw`): scores every
-        candidate on a few of its mask's pixels and returns the best `search_starts` logits
-        (S, K) with the fitting inputs (coords, colour, background rgb and logit, target,
-        centre) of the refinement."""
+                colour: torch.Tensor, centre: torch.Tensor, exact: bool = False) -> tuple[torch.Tensor, FittedPixels]:
+        """The cheap search of slot `slot` (with the draws of :meth:`_draw`; the scene's image
+        (R * R, 3), the object's colour (3,) and mask centroid (1, 2)): scores every candidate
+        on a few of its mask's pixels (the deformation residual interpolated from a coarse
+        grid unless `exact`) and returns the best `search_starts` logits (S, K) with the
+        pixels the refinement fits."""
         c = self.config
         idx = torch.from_numpy(pixels)
-        fitting = (self.coords[idx][None], colour[None], self.bg_rgb[:, idx], self.bg_logit[:, idx], rgb[idx][None],
-                   centre)
+        fitting = FittedPixels(self.coords[idx][None], colour[None], self.bg_rgb[:, idx], self.bg_logit[:, idx],
+                               rgb[idx][None], centre)
         k, m = c.num_endpoints, c.simplex_margin
         # Every training demonstration's weights and the endpoints themselves, mapped into the
         # search's enlarged simplex, then random points of the enlarged simplex.
@@ -101,13 +135,22 @@ class Predictor:
             torch.log((known + m / k) / (1.0 + m) + 1e-6),
             self._nearest_centres(slot, torch.log(torch.from_numpy(random_points).float() + 1e-4), centre),
         ])
-        # The pixels are a random subset already: their first few are a random sample too.
-        few = slice(0, c.search_pixels)
-        coords, _, bg_rgb, bg_logit, target, _ = fitting
+        few = fitting.first(c.search_pixels)
+        coarse = None if exact else self._coarse_residual(few.coords)
         with torch.no_grad():
-            losses, _ = self._object_loss(slot, candidates, coords[:, few], colour[None], bg_rgb[:, few],
-                                          bg_logit[:, few], target[:, few], centre)
+            losses, _ = self._object_loss(slot, candidates, few, coarse=coarse)
         return candidates[torch.argsort(losses)[: c.search_starts]].clone(), fitting
+
+    def _coarse_residual(self, coords: torch.Tensor) -> CoarseResidual | None:
+        """The deformation residual's grid over the pixels `coords` (1, P, 2), at the config's
+        `residual_grid_pixels`; None (evaluate it at every pixel) for 0, or where the grid
+        would not have under half as many points as there are pixels (a few pixels spread
+        over a long object's box): interpolating would then cost more than it saves."""
+        spacing = self.config.residual_grid_pixels
+        if not spacing:
+            return None
+        grid = CoarseResidual(coords, spacing * 2.0 / self.config.field_resolution)
+        return grid if 2 * grid.size < coords.shape[1] else None
 
     def _nearest_centres(self, slot: int, logits: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
         """The `search_candidates` of the search logits (P, K) whose latents put slot `slot`'s
@@ -122,20 +165,20 @@ class Predictor:
             error = ((self.model.objects[slot].object_centre(latent, anchor) - centre) ** 2).sum(dim=-1)
         return logits[torch.argsort(error)[:wanted]]
 
-    def _bake(self, slot: int, starts: torch.Tensor, fitting: tuple) -> BakedAppearance:
+    def _bake(self, slot: int, starts: torch.Tensor, fitting: FittedPixels) -> BakedAppearance:
         """Slot `slot`'s appearance for this scene's colour, baked over the box of template
         coordinates that its refinement starts (S, K) map the fitted pixels to, widened by
         BAKE_MARGIN for the way the refinement moves them, at `texels_per_pixel` texels per
         field pixel. (The template's own support is no bound: far from what training saw,
         the appearance network may still claim pixels.)"""
-        coords, colour, centre = fitting[0], fitting[1], fitting[5]
         field = self.model.objects[slot]
         s = starts.shape[0]
         with torch.no_grad():
-            seen = field.canonical(coords.expand(s, -1, -1), self.model.object_latent(slot, self.weights_of(starts)),
-                                   anchor=centre.expand(s, -1)).reshape(-1, 2)
+            seen = field.canonical(fitting.coords.expand(s, -1, -1),
+                                   self.model.object_latent(slot, self.weights_of(starts)),
+                                   anchor=fitting.centre.expand(s, -1)).reshape(-1, 2)
         spacing = 2.0 / (self.config.field_resolution * self.config.texels_per_pixel)
-        return BakedAppearance(field, colour[0], seen.min(dim=0).values - BAKE_MARGIN,
+        return BakedAppearance(field, fitting.colour[0], seen.min(dim=0).values - BAKE_MARGIN,
                                seen.max(dim=0).values + BAKE_MARGIN, spacing)
 
     def infer_scene(self, inputs: core_data.SceneInputs, seed: int = 0,
@@ -145,10 +188,10 @@ class Predictor:
         MSE (None for an absent slot).
 
         A cheap search per object, then Adam refines the object's best starts (multi-start)
-        with its appearance baked for the scene (config `texels_per_pixel`) and its
-        deformation residual interpolated from a coarse grid (`residual_grid_pixels`);
-        `exact` evaluates the networks at every step instead. The MSE and the choice among
-        the refined starts always use the networks."""
+        with its appearance baked for the scene (config `texels_per_pixel`); both interpolate
+        the deformation residual from a coarse grid (`residual_grid_pixels`) where that grid
+        is much smaller than the fitted pixels. `exact` evaluates the networks at every step
+        instead. The MSE and the choice among the refined starts always use the networks."""
         return self.infer_scenes([inputs], [seed], exact)[0]
 
     def infer_scenes(self, scenes: list[core_data.SceneInputs], seeds: list[int],
@@ -195,18 +238,17 @@ class Predictor:
         c = self.config
         rgb = torch.from_numpy(inputs.rgb.reshape(-1, 3))
         colour, centre = torch.from_numpy(inputs.colour[slot]), torch.from_numpy(inputs.centre[slot])
-        start, fitting = self._search(slot, *draws, rgb, colour, centre)
+        start, fitting = self._search(slot, *draws, rgb, colour, centre, exact)
         fast = c.refine_steps > 0 and not exact
         baked = self._bake(slot, start, fitting) if fast and c.texels_per_pixel else None
-        coarse = (CoarseResidual(fitting[0], c.residual_grid_pixels * 2.0 / c.field_resolution)
-                  if fast and c.residual_grid_pixels else None)
+        coarse = self._coarse_residual(fitting.coords) if fast else None
         searched = start.detach().clone()
         lowest = torch.full((start.shape[0],), float("inf"))
         best_seen = searched.clone()
         start.requires_grad_(True)
         optimiser = Adam(start, lr=c.refine_learning_rate)
         for _ in range(c.refine_steps):
-            per_start = self._object_loss(slot, start, *fitting, baked=baked, coarse=coarse)[0]
+            per_start = self._object_loss(slot, start, fitting, baked=baked, coarse=coarse)[0]
             with torch.no_grad():  # the loss is of the iterate before this step
                 better = per_start < lowest
                 lowest = torch.where(better, per_start, lowest)
@@ -221,11 +263,12 @@ class Predictor:
         # refinement's own loss) and its last one: the fit never ends worse than its search.
         with torch.no_grad():
             candidates = torch.cat([searched, best_seen, start.detach()])
-            final, errors = self._object_loss(slot, candidates, *fitting)
+            final, errors = self._object_loss(slot, candidates, fitting)
             best = int(torch.argmin(final))
             weights = self.weights_of(candidates[best])
             rendered = (self.model.objects[slot](self.coords[None], self.model.object_latent(slot, weights[None]),
-                                                 colour[None], anchor=centre.expand(1, -1)) if render else None)
+                                                 colour[None], anchor=centre.expand(1, -1),
+                                                 coarse=self.whole_image_residual) if render else None)
             return weights, float(errors[best]), rendered
 
     def prepare(self, image: np.ndarray, labels: np.ndarray) -> core_data.SceneInputs:
@@ -298,7 +341,8 @@ class Predictor:
         with torch.no_grad():
             drawn = (map_objects or runtime.worker_pool().map)(
                 lambda slot: self.model.objects[slot](self.coords[None], latents[:, slot], colour[None, slot],
-                                                      anchor=anchors[:, slot]), missing)
+                                                      anchor=anchors[:, slot], coarse=self.whole_image_residual),
+                missing)
             rendered.update(zip(missing, drawn))
             scene = self.model.composite([rendered[slot] for slot in range(self.config.num_objects)], present[None],
                                          (self.bg_rgb, self.bg_logit))

@@ -7,6 +7,7 @@ Coordinates are image coordinates in [-1, 1]^2 (x right, y down).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -22,13 +23,19 @@ def fourier_features(x: torch.Tensor, octaves: int, progress: float | None = Non
     """
     if octaves == 0:
         return x
-    freqs = (2.0 ** torch.arange(octaves, dtype=x.dtype, device=x.device)) * math.pi
+    freqs = _octave_frequencies(octaves, x.dtype, x.device)
     angles = x[..., None, :] * freqs[:, None]  # (..., L, d)
     enc = torch.cat([torch.sin(angles), torch.cos(angles)], dim=-1)
     if progress is not None:
         ramp = torch.clamp(progress * octaves - torch.arange(octaves, dtype=x.dtype, device=x.device), 0.0, 1.0)
         enc = enc * (0.5 - 0.5 * torch.cos(math.pi * ramp))[:, None]
     return torch.cat([x, enc.flatten(-2)], dim=-1)
+
+
+@functools.lru_cache(maxsize=64)
+def _octave_frequencies(octaves: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """``2^k pi`` for k < octaves, (octaves,): built once per kind, not at every call."""
+    return (2.0 ** torch.arange(octaves, dtype=dtype, device=device)) * math.pi
 
 
 def encoded_size(dim: int, octaves: int) -> int:
@@ -49,10 +56,22 @@ class LipschitzLinear(nn.Module):
     def bound(self) -> torch.Tensor:
         return F.softplus(self.raw_bound)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def capped_weight(self) -> torch.Tensor:
+        """The weight with its rows scaled so that its infinity-norm is at most the bound."""
         row_norms = self.linear.weight.abs().sum(dim=1)
         scale = torch.clamp(self.bound() / row_norms, max=1.0)
-        return F.linear(x, self.linear.weight * scale[:, None], self.linear.bias)
+        return self.linear.weight * scale[:, None]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if torch.is_grad_enabled() and (self.linear.weight.requires_grad or self.raw_bound.requires_grad):
+            return F.linear(x, self.capped_weight(), self.linear.bias)
+        # Frozen (inference): the capped weight is the same at every call until the
+        # parameters change in place, which bumps their version counters.
+        key = (self.linear.weight._version, self.raw_bound._version, self.linear.weight.data_ptr())
+        if getattr(self, "_frozen", (None,))[0] != key:
+            with torch.no_grad():
+                self._frozen = (key, self.capped_weight())
+        return F.linear(x, self._frozen[1], self.linear.bias)
 
 
 class FilmMLP(nn.Module):
