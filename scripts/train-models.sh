@@ -3,8 +3,7 @@
 # paper's low-data size (wall 10, incline 20, cup 20, cube 30 demonstrations; 30 for
 # language_pick_place, which the paper does not table; training seeds from 0) and one seeded
 # `cnfmp train` run (seed 0 unless the recipe names another) with the default configuration,
-# or configs/core/<task>.json where it exists (its "after_training" inference settings end
-# up in the model's config.json).
+# or configs/core/<task>.json where it exists.
 # Two tasks train at a time (one torch thread each). Usage: scripts/train-models.sh [TASK ...]
 # Environment: MODELS_DIR (default models), DATASETS_DIR (default a temporary directory).
 set -euo pipefail

@@ -237,8 +237,12 @@ def test_inference_on_a_training_scene_recovers_its_own_trajectory(trained, demo
         # The decoded trajectory runs at 10 Hz, like the dataset: compare frame by frame.
         predicted = out["trajectory"]["position"]
         own = med_cm(predicted, demos.trajectories[index][:, :3])
-        others = [med_cm(predicted, demos.trajectories[j][:, :3]) for j in range(len(demos)) if j != index]
-        assert own < 1.5 and own < min(others), (index, own, others)
+        # Closer to its own than to any demonstration that the 1.5 cm asked of it can tell
+        # apart from its own (two of the three scenes are near twins: 1.4 cm apart).
+        distinct = [j for j in range(len(demos))
+                    if j != index and med_cm(demos.trajectories[j][:, :3], demos.trajectories[index][:, :3]) > 1.5]
+        others = [med_cm(predicted, demos.trajectories[j][:, :3]) for j in distinct]
+        assert distinct and own < 1.5 and own < min(others), (index, own, others)
         assert all(m is not None and m < 0.01 for m in out["object_mse"])
 
 
@@ -640,37 +644,32 @@ def test_train_writes_a_complete_model_directory_and_never_overwrites(dataset_di
     assert leftovers == []
 
 
-def test_config_files_layer_in_order_and_so_do_their_after_training_sections(tmp_path):
-    (tmp_path / "recipe.json").write_text(json.dumps({"steps": 100, "seed": 3, training.AFTER_TRAINING: {"refine_steps": 10, "refine_learning_rate": 0.05}}))
-    (tmp_path / "quick.json").write_text(json.dumps({"steps": 40, training.AFTER_TRAINING: {"refine_steps": 5}}))
-    values, after, source = training.read_configs([str(tmp_path / "recipe.json"), str(tmp_path / "quick.json")])
-    assert values == {"steps": 40, "seed": 3}
-    assert after == {"refine_steps": 5, "refine_learning_rate": 0.05}
+def test_config_files_layer_in_order_and_the_retired_after_training_section_is_refused(tmp_path):
+    (tmp_path / "recipe.json").write_text(json.dumps({"steps": 100, "seed": 3, "refine_steps": 10}))
+    (tmp_path / "quick.json").write_text(json.dumps({"steps": 40, "refine_steps": 5}))
+    values, source = training.read_configs([str(tmp_path / "recipe.json"), str(tmp_path / "quick.json")])
+    assert values == {"steps": 40, "seed": 3, "refine_steps": 5}
     assert source.endswith("quick.json") and "recipe.json + " in source
-    assert training.read_configs([]) == ({}, {}, "config")
-    (tmp_path / "bad.json").write_text(json.dumps({training.AFTER_TRAINING: [1]}))
-    with pytest.raises(InputError, match="bad.json: after_training must be a JSON object"):
-        training.read_configs([str(tmp_path / "bad.json")])
+    assert training.read_configs([]) == ({}, "config")
+    (tmp_path / "old.json").write_text(json.dumps({"steps": 40, training.RETIRED_SECTION: {"refine_steps": 5}}))
+    with pytest.raises(InputError, match="old.json: the 'after_training' section is no longer read.*top level"):
+        training.read_configs([str(tmp_path / "old.json")])
 
 
-def test_after_training_settings_change_the_shipped_config_but_not_the_weights(dataset_dir, tmp_path):
-    settings = {"refine_steps": 3, "refine_learning_rate": 0.07}
-    for name, extra in (("plain", {}), ("after", {training.AFTER_TRAINING: settings})):
+def test_inference_settings_of_a_config_change_the_shipped_config_but_not_the_weights(dataset_dir, tmp_path):
+    """Training's motion refit fits the demonstrations' latents with its own search
+    (REFIT_SEARCH), so a config's search and refinement settings are only what the model
+    predicts with: the same seed gives the same weights whatever they are."""
+    settings = {"search_candidates": 5, "refine_steps": 3, "refine_learning_rate": 0.07}
+    for name, extra in (("plain", {}), ("cheap", settings)):
         (tmp_path / f"{name}.json").write_text(json.dumps({**TINY, **extra}))
         training.train(dataset_dir, str(tmp_path / name), [str(tmp_path / f"{name}.json")], steps=5, seed=2,
                        progress=False)
-    plain, after = (json.loads((tmp_path / name / CONFIG_FILE).read_text()) for name in ("plain", "after"))
-    assert (after["refine_steps"], after["refine_learning_rate"]) == (3, 0.07)
-    assert (plain["refine_steps"], plain["refine_learning_rate"]) == (TINY["refine_steps"], CnfmpConfig.refine_learning_rate)
-    assert CnfmpConfig.refine_learning_rate != settings["refine_learning_rate"]
-    assert {k: v for k, v in after.items() if k not in settings} == {k: v for k, v in plain.items() if k not in settings}
-    assert (tmp_path / "after" / WEIGHTS_FILE).read_bytes() == (tmp_path / "plain" / WEIGHTS_FILE).read_bytes()
-    assert "`refine_steps` 3" in (tmp_path / "after" / "README.md").read_text()
-    # Only inference settings, refused before any training.
-    (tmp_path / "bad.json").write_text(json.dumps({**TINY, training.AFTER_TRAINING: {"steps": 3}}))
-    with pytest.raises(InputError, match="after_training may set only inference settings.*not steps"):
-        training.train(dataset_dir, str(tmp_path / "bad"), [str(tmp_path / "bad.json")], progress=False)
-    assert not (tmp_path / "bad").exists()
+    plain, cheap = (json.loads((tmp_path / name / CONFIG_FILE).read_text()) for name in ("plain", "cheap"))
+    assert {k: cheap[k] for k in settings} == settings
+    assert {k: plain[k] for k in settings} != settings
+    assert {k: v for k, v in cheap.items() if k not in settings} == {k: v for k, v in plain.items() if k not in settings}
+    assert (tmp_path / "cheap" / WEIGHTS_FILE).read_bytes() == (tmp_path / "plain" / WEIGHTS_FILE).read_bytes()
 
 
 def test_inference_does_not_import_the_compiler_stack():
@@ -734,13 +733,28 @@ def test_every_shipped_recipe_and_its_quick_overlay_build_a_valid_config():
 
     repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     recipes = sorted(glob.glob(os.path.join(repo, "configs", "core", "*.json")))
-    assert len(recipes) == 5
+    assert len(recipes) == 3  # cube_stacking and language_pick_place train with the default config
     for recipe in recipes:
         for layers in ([recipe], [recipe, os.path.join(repo, "configs", "quick", "cnfmp.json")]):
-            values, after, source = training.read_configs(layers)
-            config = CnfmpConfig(**values)
-            config.check(source)
-            training._shipped_config(config, after, source)
+            values, source = training.read_configs(layers)
+            CnfmpConfig(**values).check(source)
     for model in glob.glob(os.path.join(repo, "models", "*", CONFIG_FILE)):
         if json.load(open(model)).get("model_type") == "cnfmp":
             load_model(os.path.dirname(model))
+
+
+def test_a_frozen_lipschitz_layer_reuses_its_capped_weight_until_the_weight_changes():
+    from cnfmp.core.layers import LipschitzLinear
+
+    torch.manual_seed(0)
+    layer = LipschitzLinear(5, 3)
+    with torch.no_grad():
+        layer.raw_bound.fill_(-1.0)  # a bound below the initial norm: the cap is active
+    x = torch.randn(7, 5)
+    trained = layer(x)  # parameters require grad: computed afresh
+    layer.requires_grad_(False)
+    assert torch.equal(layer(x), trained) and torch.equal(layer(x), trained)  # cached, bit for bit
+    with torch.no_grad():
+        layer.linear.weight.add_(torch.randn(3, 5))  # an in-place update, as an optimiser or load_state_dict makes
+    expected = torch.nn.functional.linear(x, layer.capped_weight(), layer.linear.bias)
+    assert torch.equal(layer(x), expected) and not torch.equal(expected, trained)

@@ -33,9 +33,8 @@ pub struct TrainArgs {
     #[arg(long)]
     out: PathBuf,
     /// JSON file of config fields (see python/cnfmp/core/configuration_cnfmp.py); defaults
-    /// otherwise. An "after_training" object in it holds inference settings the model ships
-    /// with, set after training (training's own inference uses the file's other values).
-    /// Repeat to layer files: a later file's fields win, after_training field by field.
+    /// otherwise. Its inference settings (search, refinement) are what the model ships with;
+    /// they change predictions, not weights. Repeat to layer files: a later file's fields win.
     #[arg(long = "config")]
     configs: Vec<PathBuf>,
     /// Optimisation steps (overrides the config).

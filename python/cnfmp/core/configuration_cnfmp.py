@@ -27,7 +27,9 @@ class CnfmpConfig(MotionConfig):
     num_objects: int = 0
     #: Use only the first N labelled objects of every scene, the ones the task is about (the
     #: named object and place of language_pick_place); later labels (distractors) count as
-    #: background, in training and in prediction. 0 = every labelled object gets a slot.
+    #: background, in training and in prediction. 0 = training chooses N from the
+    #: demonstrations (:mod:`cnfmp.core.task_objects`; the card says what it chose and why)
+    #: and writes it here, or leaves 0 when every labelled object gets a slot.
     task_objects: int = 0
     #: Object names of the first demonstration, per slot (for cards and listings).
     object_names: list[str] = field(default_factory=list)
@@ -184,9 +186,10 @@ class CnfmpConfig(MotionConfig):
     draw_fraction: float = 0.3
 
     # ---- inference ----
-    #: The fields below: they change how a trained model predicts, not its weights (except
-    #: through training's motion refit, which runs inference), so a config file may set them
-    #: in its ``after_training`` section (:mod:`cnfmp.core.training`).
+    #: The fields below: they change how a trained model predicts, not its weights (training's
+    #: motion refit fits the demonstrations' latents with a search of its own,
+    #: :data:`cnfmp.core.training_cnfmp.REFIT_SEARCH`; only `inference_pixels` and
+    #: `simplex_margin` reach it).
     INFERENCE_FIELDS: ClassVar[tuple[str, ...]] = (
         "search_pool", "search_candidates", "search_pixels", "search_starts", "refine_steps", "refine_learning_rate",
         "texels_per_pixel", "residual_grid_pixels", "inference_pixels", "simplex_margin")

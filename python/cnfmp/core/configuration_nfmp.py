@@ -59,7 +59,7 @@ class NfmpConfig(MotionConfig):
     inference_steps: int = 100
     inference_learning_rate: float = 0.1
     inference_pixels: int = 2048
-    #: The fields above, which a config file's ``after_training`` section may set.
+    #: The fields above: they change how a trained model predicts, not its weights.
     INFERENCE_FIELDS: ClassVar[tuple[str, ...]] = ("inference_steps", "inference_learning_rate", "inference_pixels")
 
     model_type: str = MODEL_TYPE

@@ -22,6 +22,13 @@ from cnfmp.core.modeling_cnfmp import CnfmpModel
 from cnfmp.core.motion import LossLog, demonstration_targets, motion_loss, time_basis
 from cnfmp.errors import InputError
 
+#: Inference settings of the motion refit's latent fit (:func:`refit_motion`), in place of the
+#: model's own: a thorough search (every simplex candidate scored on the image, 20 refinement
+#: steps), paid once per demonstration at the end of training, so the motion learns from the
+#: best latents inference finds rather than from the cheaper fit a served model runs.
+REFIT_SEARCH = {"search_pool": 0, "search_candidates": 96, "search_starts": 4, "refine_steps": 20,
+                "refine_learning_rate": 0.2}
+
 
 def fit_config_to_data(config: CnfmpConfig, demos: core_data.Demonstrations) -> CnfmpConfig:
     """The "(from data)" fields of `config` filled in from the demonstrations."""
@@ -221,7 +228,7 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     from cnfmp.core.inference import Predictor
 
     config = model.config
-    predictor = Predictor(model)  # freezes every parameter
+    predictor = Predictor(model, dataclasses.replace(config, **REFIT_SEARCH))  # freezes every parameter
     scenes = [core_data.scene_inputs(demos.images[b], demos.masks[b], config.num_objects,
                                      config.field_resolution, config.mask_dilation) for b in range(len(data))]
     # Exact: the refit must not depend on an inference speed-up chosen after training.
