@@ -32,26 +32,55 @@ def test_every_model_type_writes_the_current_config_version():
     assert JsonConfig.current_version() is None  # a class without the field has no versions
     for kind in models.model_types().values():
         config = kind.config_class()
-        assert kind.config_class.current_version() == 1 and config.config_version == 1
-        assert json.loads(config.to_json())["config_version"] == 1
+        version = 2 if isinstance(config, CnfmpConfig) else 1  # cnfmp changed two defaults in version 2
+        assert kind.config_class.current_version() == version and config.config_version == version
+        assert json.loads(config.to_json())["config_version"] == version
 
 
-def test_a_config_without_a_version_loads_as_version_1_and_writes_it(tmp_path):
+def test_a_config_without_a_version_is_of_the_version_its_reader_says_and_writes_the_current_one(tmp_path):
     path = write_config(tmp_path / "config.json", {"model_type": "cnfmp", "steps": 7})
-    for unversioned in (None, 1):
-        config = CnfmpConfig.from_file(path, unversioned=unversioned)
-        assert config.config_version == 1 and config.steps == 7
+    # A training config file: the current version, today's defaults.
+    current = CnfmpConfig.from_file(path)
+    assert (current.config_version, current.anchored_centres, current.motion_shapes_latents) == (2, True, False)
+    # A model directory written before versions existed: version 1, upgraded with its defaults.
+    old = CnfmpConfig.from_file(path, unversioned=1)
+    assert (old.config_version, old.steps, old.anchored_centres, old.motion_shapes_latents) == (2, 7, False, True)
+    for config in (current, old):
         again = CnfmpConfig.from_dict(json.loads(config.to_json()))
-        assert json.loads(again.to_json())["config_version"] == 1 and again == config
+        assert json.loads(again.to_json())["config_version"] == 2 and again == config
+
+
+def test_version_1_model_directories_keep_the_defaults_they_were_trained_with(tmp_path):
+    """Version 2 turned anchored centres on and latent shaping off by default; a version-1
+    file that left them out (written before the fields existed) loads as it was trained, and
+    one that names them keeps them."""
+    upgraded = CnfmpConfig.from_dict({"config_version": 1, "model_type": "cnfmp"})
+    assert (upgraded.anchored_centres, upgraded.motion_shapes_latents) == (False, True)
+    named = CnfmpConfig.from_dict({"config_version": 1, "anchored_centres": True, "motion_shapes_latents": False})
+    assert (named.anchored_centres, named.motion_shapes_latents) == (True, False)
+    # The shipped models: the ones without a recipe for these fields are read as trained.
+    import os
+    repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    for name in os.listdir(os.path.join(repo, "models")):
+        path = os.path.join(repo, "models", name, models.CONFIG_FILE)
+        values = json.load(open(path))
+        if values.get("model_type") != "cnfmp":
+            continue
+        config = models.read_config(os.path.dirname(path))
+        if values.get("config_version", 1) == 1:
+            assert config.anchored_centres == values.get("anchored_centres", False), name
+    # Asking for shaped latents alone now says what else to change.
+    with pytest.raises(InputError, match="set anchored_centres false too"):
+        CnfmpConfig.from_dict({"motion_shapes_latents": True})
 
 
 def test_newer_and_malformed_versions_are_refused(tmp_path):
-    newer = write_config(tmp_path / "newer.json", {"config_version": 2, "steps": 7})
-    with pytest.raises(InputError, match=r"newer.json: config_version 2 was written by a newer cnfmp.*update cnfmp"):
+    newer = write_config(tmp_path / "newer.json", {"config_version": 3, "steps": 7})
+    with pytest.raises(InputError, match=r"newer.json: config_version 3 was written by a newer cnfmp.*update cnfmp"):
         CnfmpConfig.from_file(newer)
     # A newer file's new fields are not what is wrong with it: the version is named first.
     with pytest.raises(InputError, match="newer cnfmp"):
-        CnfmpConfig.from_dict({"config_version": 2, "a_field_of_version_2": 1})
+        CnfmpConfig.from_dict({"config_version": 3, "a_field_of_version_3": 1})
     for bad in (0, -1, "1", 1.0, True, None):
         with pytest.raises(InputError, match="config_version must be a whole number >= 1"):
             CnfmpConfig.from_dict({"config_version": bad})
@@ -132,7 +161,7 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     saved = tmp_path / "today"
     saved.mkdir()
     models.save_model(model, str(saved))
-    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 1
+    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 2
     old = tmp_path / "before-versions"
     shutil.copytree(saved, old)
     values = json.loads((old / models.CONFIG_FILE).read_text())
@@ -146,15 +175,15 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     np.testing.assert_array_equal(one["weights"], two["weights"])
     assert one["object_mse"] == two["object_mse"]
 
-    # Were the current version 2, the directory without the key would be upgraded from
-    # version 1 (not taken as current), and the one with it too.
+    # Were the current version 3, the directory without the key would be upgraded from
+    # version 1 (not taken as current) through 2, and the one with it from 2.
     upgraded = []
-    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 2))
+    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 3))
     monkeypatch.setattr(CnfmpConfig, "upgrade",
                         classmethod(lambda cls, values, version, source: upgraded.append(version) or values))
-    assert models.read_config(str(old)).config_version == 2 and upgraded == [1]
-    assert models.read_config(str(saved)).config_version == 2 and upgraded == [1, 1]
+    assert models.read_config(str(old)).config_version == 3 and upgraded == [1, 2]
+    assert models.read_config(str(saved)).config_version == 3 and upgraded == [1, 2, 2]
     monkeypatch.undo()
-    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 2))
-    with pytest.raises(InputError, match=r"config.json: config_version 1 .* retrain the model with `cnfmp train`"):
-        models.read_config(str(old))
+    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 3))
+    with pytest.raises(InputError, match=r"config.json: config_version 2 .* retrain the model with `cnfmp train`"):
+        models.read_config(str(saved))

@@ -19,8 +19,42 @@ MODEL_TYPE = "cnfmp"
 NOGATE_MODEL_TYPE = "cnfmp-nogate"
 
 
+#: What a version-1 config (written before 2026-12-03) meant by leaving a field out: the
+#: defaults that version 2 changed. Upgrading fills them in, so older models load as trained.
+VERSION_1_DEFAULTS = {"anchored_centres": False, "motion_shapes_latents": True}
+
+
 @dataclass
 class CnfmpConfig(MotionConfig):
+    """Configuration of a cnfmp model: its fields, their training and their inference.
+
+    For a new task, change nothing: `cnfmp train --dataset D --out M` fills the "(from
+    data)" fields, chooses which labelled objects the task is about (`task_objects`) and
+    trains the default recipe (docs/experiments.md, "Anchored centres for every task", for
+    what it reaches on the benchmark tasks). What a user may reasonably change, and when:
+
+    - `steps` (2000): fewer for a quick look (the losses are printed as training goes), more
+      when the trajectory loss is still falling at the end.
+    - `task_objects`: to overrule training's choice of the objects the task is about (the
+      first N labels; later ones are background), e.g. when only the first object matters.
+    - `draws` (1): several initialisations, the one whose motion fits best going on, when a
+      seed's trajectory loss stays far above another seed's.
+    - `num_endpoints` (4), `full_turns`, `shading_moments`, `rotation_chart`: for objects
+      whose pose (not only position) the motion must read, as incline's ramp and block
+      (configs/core/incline_pick_place.json); `tilt_object` is that recipe's own path and
+      will go.
+    - The inference settings (`search_candidates`, `search_starts`, `refine_steps`, ...):
+      latency against fit; they change predictions, not weights, so they may also be edited
+      in a trained model's config.json.
+
+    The rest are the method's own choices, measured in docs/experiments.md; change them to
+    study the method, not to fit a task.
+    """
+
+    #: Version 2: objects anchored on their masks' centroids, latents not shaped by the
+    #: motion, by default (version 1 had neither; :meth:`upgrade`).
+    config_version: int = 2
+
     # ---- what the model is for (from data) ----
     #: Object slots, in label order (label k of a mask = slot k-1). A scene may leave trailing
     #: slots empty (e.g. two cups of at most three); the slot then uses a learned "absent" latent.
@@ -100,7 +134,9 @@ class CnfmpConfig(MotionConfig):
     #: `motion_shapes_latents` False (check() refuses the pair): shaped by the motion, the
     #: latents memorise each demonstration's position again and the motion stops reading the
     #: centroid (docs/experiments.md, "Anchored centres": cup validation success 0.075 against 0.95).
-    anchored_centres: bool = False
+    #: On by default since config version 2: with it, every task but incline trains to its
+    #: validation targets from any seed ("Anchored centres for every task").
+    anchored_centres: bool = True
     #: Whether the motion also reads, for each object, the first moment of the image's
     #: darkness inside its coarse mask: the offset from the mask's centroid to its
     #: darkness-weighted centroid (image coordinates) and the mask's mean luminance, through a
@@ -151,8 +187,9 @@ class CnfmpConfig(MotionConfig):
     gate_present_only: bool = True
     #: Whether the trajectory loss also moves the latents (joint shaping, as in the paper);
     #: False trains the motion on the latents the scene alone explains, so nothing the image
-    #: cannot show steers the motion.
-    motion_shapes_latents: bool = True
+    #: cannot show steers the motion (the default since config version 2; True needs
+    #: `anchored_centres` false).
+    motion_shapes_latents: bool = False
     #: Steps of the motion refit that ends training: every demonstration's latents are
     #: inferred from its image exactly as for a new scene, and the gating and trajectory
     #: generator alone are fit to them, so the motion reads the latents inference produces
@@ -226,6 +263,14 @@ class CnfmpConfig(MotionConfig):
 
     model_type: str = MODEL_TYPE
 
+    @classmethod
+    def upgrade(cls, values: dict, version: int, source: str) -> dict:
+        """Version 1 -> 2: the fields whose default changed get their version-1 value where
+        the file leaves them out."""
+        if version == 1:
+            return {**VERSION_1_DEFAULTS, **values}
+        return super().upgrade(values, version, source)
+
     def check(self, source: str = "config") -> None:
         """InputError for values no model can be built with."""
         super().check(source)
@@ -248,9 +293,10 @@ class CnfmpConfig(MotionConfig):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(f"{source}: {name} must be in [0, 1], got {getattr(self, name)!r}")
         if self.anchored_centres and self.motion_shapes_latents:
-            raise InputError(f"{source}: anchored_centres needs motion_shapes_latents false (shaped by the "
-                             "motion, the latents memorise each demonstration's position and the motion "
-                             "ignores the mask centroid)")
+            raise InputError(f"{source}: anchored_centres (on by default) needs motion_shapes_latents false (shaped "
+                             "by the motion, the latents memorise each demonstration's position and the motion "
+                             "ignores the mask centroid); for latents shaped by the motion set anchored_centres "
+                             "false too")
         if self.shading_moments and not self.anchored_centres:
             raise InputError(f"{source}: shading_moments needs anchored_centres (the motion reads the "
                              "shading beside the mask centroid)")
