@@ -3,9 +3,10 @@
 A segmenter labels every object it finds, the task's first (the prompt's target and place)
 and then whatever else stands on the table. A distractor given a slot of its own costs
 training time and, worse, gives the motion inputs whose variation over 20 demonstrations it
-can only memorise. Before training, each demonstration's trajectory (its position and gripper) is predicted from the mask
-statistics (:data:`cnfmp.core.data.OBSERVATION_NAMES`, plus presence) of its first 1, 2, ...
-objects by ridge regression, one demonstration left out at a time. The first c objects are
+can only memorise. Before training, each demonstration's trajectory (its position and
+gripper) is predicted from the mask statistics (:data:`cnfmp.core.data.OBSERVATION_NAMES`,
+plus presence) of its first 1, 2, ... objects by ridge regression, one demonstration left
+out at a time. The first c objects are
 kept, the others left to the background, when c objects predict the left-out trajectories
 best on average and all of them predict significantly worse (a paired one-sided t-test
 over the demonstrations, p < :data:`SIGNIFICANCE`). Otherwise every object keeps its slot.
@@ -24,7 +25,8 @@ import numpy as np
 
 from cnfmp.core import data as core_data
 
-#: One-sided p-value below which the extra object's left-out error counts as worse.
+#: One-sided p-value below which all the objects' left-out error counts as worse than the
+#: best count's.
 SIGNIFICANCE = 0.05
 #: Fewest demonstrations the choice is made on; with fewer, every object keeps its slot.
 MIN_DEMOS = 6
@@ -61,6 +63,13 @@ class TaskObjectChoice:
     @property
     def drops_objects(self) -> bool:
         return self.count < self.available
+
+    def describe(self) -> str:
+        """The reason and, where the test ran, the left-out error per count (one line)."""
+        if not self.left_out_mse:
+            return self.reason
+        errors = ", ".join(f"{e:.3f}" for e in self.left_out_mse)
+        return f"{self.reason}; left-out error for 1..{self.available} objects: {errors}"
 
 
 def _features(demos: core_data.Demonstrations, count: int) -> np.ndarray:

@@ -54,14 +54,13 @@ def train(dataset_dir: str, out_dir: str, config_paths: Sequence[str] = (), step
     if align_time:
         trajectories, aligned = align_demonstrations(demos.trajectories, demos.fps)
         demos, timing = dataclasses.replace(demos, trajectories=trajectories), aligned.describe()
-    objects = None
+    objects = None  # how the task's objects were chosen, for the log and the card
     if isinstance(config, CnfmpConfig):
         if config.task_objects:
             objects = f"the first {config.task_objects} (set by the config)"
         else:
             choice = choose_task_objects(demos)
-            objects = choice.reason + (f"; left-out error for 1..{choice.available} objects: "
-                                       + ", ".join(f"{e:.3f}" for e in choice.left_out_mse) if choice.left_out_mse else "")
+            objects = choice.describe()
             if choice.drops_objects:
                 config = dataclasses.replace(config, task_objects=choice.count)
         if config.task_objects:
