@@ -9,7 +9,6 @@ from the dataset and need not be set in a config file.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar
 
 from cnfmp.core.configuration_common import MotionConfig
 from cnfmp.errors import InputError
@@ -228,9 +227,6 @@ class CnfmpConfig(MotionConfig):
     #: motion refit fits the demonstrations' latents with a search of its own,
     #: :data:`cnfmp.core.training_cnfmp.REFIT_SEARCH`; only `inference_pixels` and
     #: `simplex_margin` reach it).
-    INFERENCE_FIELDS: ClassVar[tuple[str, ...]] = (
-        "search_pool", "search_candidates", "search_pixels", "search_starts", "refine_steps", "refine_learning_rate",
-        "texels_per_pixel", "residual_grid_pixels", "inference_pixels", "simplex_margin")
     #: Random simplex points drawn per object, ranked by the centre prior alone (where each
     #: would put the object's centre against its mask's centroid: no image is read, so
     #: thousands cost well under a millisecond); the best `search_candidates` of them go on

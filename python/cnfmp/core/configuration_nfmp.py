@@ -10,7 +10,6 @@ weights over the training latents, fit to the whole image by Adam.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 from cnfmp.core.configuration_common import MotionConfig
 from cnfmp.errors import InputError
@@ -53,14 +52,12 @@ class NfmpConfig(MotionConfig):
     learning_rate: float = 2e-3
     latent_learning_rate: float = 1e-2
 
-    # ---- inference ----
+    # ---- inference (these change how a trained model predicts, not its weights) ----
     #: Adam steps on the softmax logits over the training latents, their learning rate, and
     #: the pixels of the image (a fixed random subset) the RGB loss is measured on.
     inference_steps: int = 100
     inference_learning_rate: float = 0.1
     inference_pixels: int = 2048
-    #: The fields above: they change how a trained model predicts, not its weights.
-    INFERENCE_FIELDS: ClassVar[tuple[str, ...]] = ("inference_steps", "inference_learning_rate", "inference_pixels")
 
     model_type: str = MODEL_TYPE
 

@@ -70,8 +70,8 @@ class Predictor:
     depend on the scene."""
 
     def __init__(self, model: CnfmpModel, settings: CnfmpConfig | None = None):
-        """`settings`: the model's config with other inference settings (its
-        INFERENCE_FIELDS) to predict with; None: the model's own."""
+        """`settings`: the model's config with other inference settings (the fields of its
+        "inference" section) to predict with; None: the model's own."""
         self.model = model.eval()
         for p in model.parameters():  # frozen: inference optimises simplex weights only
             p.requires_grad_(False)
