@@ -52,9 +52,17 @@ for which in first second; do
     seconds_taken=$(curl -sf -o /dev/null -w '%{time_total}' -H 'Content-Type: application/json' --data-binary "@$BENCH_BODY" "$url")
     echo "$which request: $(awk -v s="$seconds_taken" 'BEGIN { printf "%.0f", 1000 * s }') ms"
 done
-# The server's resident memory now and at its peak (VmRSS, VmHWM), MiB.
+# The server's resident memory now and at its peak (VmRSS, VmHWM), MiB, and its helper
+# processes' (its children) together.
 memory() {
     awk '/^VmRSS/ {rss = $2} /^VmHWM/ {hwm = $2} END {printf "rss %.0f MiB (peak %.0f MiB)", rss / 1024, hwm / 1024}' "/proc/$server_pid/status"
+    local helpers
+    helpers=$(pgrep -P "$server_pid" || true)
+    if [[ -n $helpers ]]; then
+        # shellcheck disable=SC2086  # one status file per helper
+        awk '/^VmRSS/ {rss += $2} /^VmHWM/ {hwm += $2} END {printf ", helpers rss %.0f MiB (peak %.0f MiB)", rss / 1024, hwm / 1024}' \
+            $(printf '/proc/%s/status ' $helpers)
+    fi
 }
 level() {
     local connections=$1 label=$2

@@ -10,6 +10,7 @@ pub mod convert;
 pub mod episode;
 pub mod failure;
 pub mod files;
+pub mod helpers;
 pub mod images;
 pub mod model_dir;
 pub mod progress;

@@ -13,7 +13,7 @@ import pytest
 import torch
 from PIL import Image
 
-from cnfmp import geometry
+from cnfmp import geometry, helper_processes
 from cnfmp.core import api, data as core_data, motion, training, training_cnfmp
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.inference import Predictor
@@ -315,6 +315,31 @@ def test_a_batch_of_scenes_gets_the_answers_each_gets_alone_and_a_bad_scene_fail
         assert one["frames"] == other["frames"] and one["objects"] == other["objects"]
         assert one["scene_psnr_db"] == other["scene_psnr_db"]
     assert alone[0]["frames"] != alone[1]["frames"], "different scenes must differ for the check to mean anything"
+
+
+def test_objects_fitted_on_a_helper_process_give_the_answers_of_this_process_alone(trained, tmp_path, demos, capfd):
+    model, _ = trained
+    save_model(model, str(tmp_path))
+    names = ["wall", "goal marker"]
+    scenes = [(png(demos.images[b]), png(demos.masks[b]), names) for b in (0, 1, 2)]
+    alone = [json.loads(answer) for answer in api.predict_batch(str(tmp_path), scenes)]
+    helper_processes.stop()
+    try:
+        assert json.loads(api.start_helpers(1)) == 1
+        helper = helper_processes.helpers()[0]
+        for batch in (scenes, scenes[:1]):  # a batch's objects, then one scene's two objects
+            helped = [json.loads(answer) for answer in api.predict_batch(str(tmp_path), batch)]
+            for one, other in zip(alone, helped):
+                assert one["frames"] == other["frames"] and one["objects"] == other["objects"]
+                assert one["scene_psnr_db"] == other["scene_psnr_db"]
+        os.kill(helper.process.pid, 9)  # a helper that dies: its share is fitted here instead
+        helper.process.wait(timeout=30)
+        capfd.readouterr()
+        after = json.loads(api.predict(str(tmp_path), *scenes[1]))
+        assert after["frames"] == alone[1]["frames"] and after["objects"] == alone[1]["objects"]
+        assert "is gone" in capfd.readouterr().err and helper_processes.helpers() == []
+    finally:
+        helper_processes.stop()
 
 
 def test_the_search_scores_on_the_image_the_pool_points_whose_centres_lie_nearest_the_mask(trained):

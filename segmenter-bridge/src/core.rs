@@ -177,6 +177,13 @@ impl Bridge {
         self.call_json("cnfmp.core.api", "warm_up", move |py| Ok(kwargs!(py, model_dir = model_dir)))
     }
 
+    /// Starts helper processes that fit objects beside the embedded interpreter
+    /// (`cnfmp.core.api.start_helpers`): `count`, or by default one per core the process may
+    /// use beyond the first. Call it before the warm-ups. Returns how many run.
+    pub fn core_start_helpers(&self, count: Option<u32>) -> Result<u32, BridgeError> {
+        self.call_json("cnfmp.core.api", "start_helpers", move |py| Ok(kwargs!(py, count = count)))
+    }
+
     /// Trains a model (`cnfmp.core.api.train`); progress lines go to stderr.
     pub fn core_train(&self, request: &TrainRequest) -> Result<TrainReport, BridgeError> {
         let r = request.clone();

@@ -19,6 +19,7 @@ use super::stats::{mean, quantile, wilson_interval_95};
 use crate::episode::Simulator;
 use crate::failure::Failure;
 use crate::files::write_atomically;
+use crate::helpers::HelperArgs;
 use crate::model_dir::{check_training_outputs, load_model, model_task};
 use crate::seeds::{first_heldout_seed, heldout_seed_range, validation_seed_range};
 use crate::segmentation::{BackendArgs, prompt_roles, run_segmenter};
@@ -96,6 +97,8 @@ pub struct EvalArgs {
     from_prompt: bool,
     #[command(flatten)]
     segmenter: BackendArgs,
+    #[command(flatten)]
+    helpers: HelperArgs,
 }
 
 pub fn train(args: TrainArgs) -> Result<(), Failure> {
@@ -196,6 +199,7 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
     }
     let started = Instant::now();
     let bridge = Bridge::start_default()?;
+    args.helpers.start(bridge, "cnfmp eval")?;
     load_model(bridge, &args.model)?;
     let simulator = Simulator::new(bridge)?;
     let roles = if args.from_prompt { Some(prompt_roles(bridge, &args.model)?) } else { None };

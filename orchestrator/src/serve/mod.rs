@@ -24,6 +24,7 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use segmenter_bridge::Bridge;
 
+use crate::helpers::HelperArgs;
 use crate::segmentation::BackendArgs;
 use crate::failure::Failure;
 use catalog::Catalog;
@@ -48,6 +49,8 @@ pub struct ServeArgs {
     default_model: String,
     #[command(flatten)]
     segmenter: BackendArgs,
+    #[command(flatten)]
+    helpers: HelperArgs,
     /// Requests that may wait for the Python worker while it runs one; the next gets 503.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=4096))]
     queue_capacity: u32,
@@ -93,6 +96,7 @@ pub fn run(args: ServeArgs) -> Result<(), Failure> {
     }
     let started = Instant::now();
     let bridge = Bridge::start_default()?;
+    args.helpers.start(bridge, "cnfmp serve")?;
     let catalog = Catalog::load(bridge, &args.models, &args.default_model)?;
     let backend = bridge
         .segmenter_preload(&args.segmenter.backend, args.segmenter.weights.clone())

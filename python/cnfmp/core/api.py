@@ -18,7 +18,7 @@ from cnfmp.core.data import task_object_labels
 from cnfmp.errors import InputError
 from cnfmp.images import decode_image, decode_labels, encode_png
 
-__all__ = ["describe", "predict", "predict_batch", "synthetic_scene", "train", "warm_up"]
+__all__ = ["describe", "predict", "predict_batch", "start_helpers", "synthetic_scene", "train", "warm_up"]
 
 _LOADED: dict[str, tuple[tuple, object]] = {}
 
@@ -206,6 +206,16 @@ def synthetic_scene(names: list[str]) -> tuple[bytes, bytes, list[str]]:
         image[y:y + 24, x:x + 24] = (60 * k % 256, 200, 90)
         labels[y:y + 24, x:x + 24] = k + 1
     return encode_png(image), encode_png(labels), list(names)
+
+
+def start_helpers(count: int | None = None) -> str:
+    """Starts `count` helper processes (default: one per core beyond the first, see
+    :func:`cnfmp.helper_processes.default_count`) that fit objects beside this process, for
+    a server or an evaluation that predicts many scenes; returns how many run, as JSON.
+    Call it before the warm-ups, so that they load the models into the helpers too."""
+    from cnfmp import helper_processes
+
+    return json.dumps(helper_processes.start(count, preload=("cnfmp.core.inference",)))
 
 
 def warm_up(model_dir: str) -> str:

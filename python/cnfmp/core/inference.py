@@ -10,17 +10,26 @@ every pixel at every step (refinement 2-2.5x faster, fitting as well: docs/exper
 "Faster latent fit: baked grids"); the search and the whole-image rendering of the scene fit
 interpolate that residual too. The final reconstruction error of each object, with the
 networks, is its confidence signal.
+
+Where :mod:`cnfmp.helper_processes` runs helpers, a scene's (or batch's) object fits are
+shared between this process and its helpers, which hold a copy of the predictor: the same
+code on the same weights, so every answer is the same bit for bit wherever its objects ran.
 """
 
 from __future__ import annotations
 
+import itertools
+import os
+import sys
+import threading
 import time
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from cnfmp import runtime
+from cnfmp import helper_processes, runtime
 from cnfmp.core import data as core_data
 from cnfmp.core.adam import Adam
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
@@ -60,6 +69,78 @@ class FittedPixels:
                             self.target[:, few], self.centre)
 
 
+@dataclass(frozen=True)
+class HelperFits:
+    """A message to a helper process (:func:`fit_in_helper`): fit these objects with the
+    predictor called `key`, first building it from `model` when the helper has not got it;
+    with `fits` None, forget that predictor."""
+
+    key: str
+    #: (model config, inference settings, {state-dict name: numpy array}) or None.
+    model: tuple | None
+    #: Per object: the arguments of :meth:`Predictor._fit_object` (inputs, slot, draws, exact, render).
+    fits: list[tuple] | None
+
+
+#: The handler helper processes run for a :class:`Predictor`.
+HELPER_HANDLER = "cnfmp.core.inference:fit_in_helper"
+
+#: In a helper process: the predictors its parent sent, by key.
+_HELPER_PREDICTORS: dict[str, "Predictor"] = {}
+
+_KEYS = itertools.count()
+
+
+def fit_in_helper(message: HelperFits) -> list[tuple] | None:
+    """Runs in a helper process: the fits of `message`, each as :meth:`Predictor._fit_object`
+    returns it with numpy arrays for tensors (see :func:`_as_arrays`)."""
+    if message.fits is None:
+        _HELPER_PREDICTORS.pop(message.key, None)
+        return None
+    if message.model is not None:
+        from cnfmp.core.models import model_type
+
+        config, settings, state = message.model
+        tensors = {name: torch.from_numpy(array) for name, array in state.items()}
+        model = model_type(config.model_type).from_state(config, tensors)
+        model.load_state_dict(tensors)
+        _HELPER_PREDICTORS[message.key] = Predictor(model, settings)
+    predictor = _HELPER_PREDICTORS.get(message.key)
+    if predictor is None:
+        raise helper_processes.HelperError(f"helper process {os.getpid()} holds no predictor {message.key}")
+    return [_as_arrays(predictor._fit_object(*fit)) for fit in message.fits]
+
+
+def _as_arrays(value):
+    """`value` with every tensor in it (nested in tuples) as a numpy array, for a pipe."""
+    if isinstance(value, torch.Tensor):
+        return value.numpy()
+    if isinstance(value, tuple):
+        return tuple(_as_arrays(v) for v in value)
+    return value
+
+
+def _as_tensors(value):
+    """The inverse of :func:`_as_arrays`."""
+    if isinstance(value, np.ndarray):
+        return torch.from_numpy(value)
+    if isinstance(value, tuple):
+        return tuple(_as_tensors(v) for v in value)
+    return value
+
+
+def _forget_in_helpers(key: str, sent: set, lock: threading.Lock) -> None:
+    """Tells every helper holding predictor `key` to drop it (when the predictor is collected)."""
+    with lock:
+        for helper in helper_processes.helpers():
+            if helper.process.pid in sent:
+                try:
+                    helper.submit(HELPER_HANDLER, HelperFits(key, None, None))
+                except helper_processes.HelperError:
+                    pass  # closed meanwhile: it forgets everything
+        sent.clear()
+
+
 def psnr_db(mse: float) -> float:
     """Peak signal-to-noise ratio (dB) of an MSE on [0, 1] images."""
     return float(10.0 * np.log10(1.0 / max(mse, 1e-10)))
@@ -81,6 +162,11 @@ class Predictor:
             self.bg_rgb, self.bg_logit = model.background_terms(self.coords[None])
             self.times = torch.from_numpy(output_times(self.config)).float()
         self.whole_image_residual = self._coarse_residual(self.coords[None])
+        # What the helper processes know of this predictor (see _fit_on_helpers).
+        self._helper_key = f"{os.getpid()}-{next(_KEYS)}"
+        self._sent_to: set[int] = set()  # pids of the helpers holding a copy
+        self._helper_lock = threading.Lock()
+        weakref.finalize(self, _forget_in_helpers, self._helper_key, self._sent_to, self._helper_lock).atexit = False
 
     def weights_of(self, logits: torch.Tensor) -> torch.Tensor:
         """Search logits (..., K) -> weights on the endpoints, a point of the simplex enlarged
@@ -217,18 +303,53 @@ class Predictor:
                      for slot in range(c.num_objects) if inputs.present[slot]]
         results = [(torch.full((c.num_objects, c.num_endpoints), 1.0 / c.num_endpoints), [None] * c.num_objects, {})
                    for _ in scenes]
-        # The objects' objectives share nothing (Adam is per parameter), so each object is
-        # fitted on its own thread: torch releases the GIL inside its kernels, and with one
-        # intra-op thread per kernel this is how inference uses a second core. Only in part:
-        # the kernels are small, so the threads wait on each other for the interpreter between
-        # them (two objects: 1.2x, not 2x; docs/experiments.md, "A shorter refinement").
-        fitted = runtime.worker_pool().map(
-            lambda fit: self._fit_object(scenes[fit[0]], fit[1], fit[2], exact, render), fits)
+        # The objects' objectives share nothing (Adam is per parameter), so they can be fitted
+        # side by side: on helper processes where they run, else each on its own thread
+        # (torch releases the GIL inside its kernels, but the kernels are small, so threads
+        # wait on each other for the interpreter between them: two objects 1.2x, not 2x).
+        jobs = [(scenes[index], slot, draws, exact, render) for index, slot, draws in fits]
+        helpers = helper_processes.helpers()
+        if helpers and len(jobs) > 1:
+            fitted = self._fit_on_helpers(jobs, helpers)
+        else:
+            fitted = runtime.worker_pool().map(lambda job: self._fit_object(*job), jobs)
         for (index, slot, _), (slot_weights, slot_mse, rendered) in zip(fits, fitted):
             results[index][0][slot], results[index][1][slot] = slot_weights, slot_mse
             if rendered is not None:
                 results[index][2][slot] = rendered
         return results
+
+    def _fit_on_helpers(self, jobs: list[tuple], helpers: list[helper_processes.HelperProcess]) -> list[tuple]:
+        """The fits `jobs` (arguments of :meth:`_fit_object`) shared round-robin between this
+        thread and the helper processes, each helper's share sent as one message; a share
+        whose helper is gone is fitted here."""
+        lanes = len(helpers) + 1
+        shares = [jobs[lane::lanes] for lane in range(lanes)]
+        pending = []  # (future or None, share) per helper with a share
+        with self._helper_lock:
+            for helper, share in zip(helpers, shares[1:]):
+                if not share:
+                    continue
+                pid, model = helper.process.pid, None
+                if pid not in self._sent_to:
+                    model = (self.model.config, self.config,
+                             {name: value.numpy() for name, value in self.model.state_dict().items()})
+                try:
+                    pending.append((helper.submit(HELPER_HANDLER, HelperFits(self._helper_key, model, share)), share))
+                    self._sent_to.add(pid)
+                except helper_processes.HelperError:
+                    pending.append((None, share))
+        results = [[self._fit_object(*job) for job in shares[0]]]
+        for future, share in pending:
+            try:
+                if future is None:
+                    raise helper_processes.HelperError("its helper process closed")
+                results.append([_as_tensors(fit) for fit in future.result()])
+            except helper_processes.HelperError as err:
+                print(f"cnfmp: {err}; fitting its objects in this process", file=sys.stderr)
+                results.append([self._fit_object(*job) for job in share])
+        # Back to the jobs' order: job j was the (j // lanes)-th of lane j % lanes.
+        return [results[j % lanes][j // lanes] for j in range(len(jobs))]
 
     def _fit_object(self, inputs: core_data.SceneInputs, slot: int, draws: tuple[np.ndarray, np.ndarray],
                     exact: bool, render: bool = False) -> tuple[torch.Tensor, float, tuple | None]:
