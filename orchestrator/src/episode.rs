@@ -47,7 +47,7 @@ impl<'a> Simulator<'a> {
     /// Renders the scene of (`task`, `seed`).
     pub fn render(&self, task: &str, seed: u64) -> Result<RenderedScene, Failure> {
         let dir = self.scratch.path().join(format!("{task}-{seed}"));
-        let info = self.bridge.sim_render(task, seed, &dir)?;
+        let info = self.bridge.sim_render(task, seed, &dir, false)?;
         let read = |name: &str, what: &str| read_bytes(&dir.join(name), what);
         Ok(RenderedScene { image: read("image.png", "rendered image")?, masks: read("masks.png", "rendered masks")?, info })
     }

@@ -175,11 +175,14 @@ impl Bridge {
         })
     }
 
-    /// Renders the (task, seed) scene into `out` (image.png, masks.png, objects.json; see
-    /// `cnfmp.sim.api.render`). `out` must not exist or be empty.
-    pub fn sim_render(&self, task: &str, seed: u64, out: &Path) -> Result<SceneInfo, BridgeError> {
+    /// Renders the (task, seed) scene into `out` (image.png, masks.png, objects.json; with
+    /// `scan`, also the four-camera depth scan in `out/scan`; see `cnfmp.sim.api.render`).
+    /// `out` must not exist or be empty.
+    pub fn sim_render(&self, task: &str, seed: u64, out: &Path, scan: bool) -> Result<SceneInfo, BridgeError> {
         let (task, out) = (task.to_owned(), out.to_path_buf());
-        self.call_json("cnfmp.sim.api", "render", move |py| Ok(kwargs!(py, task = task, seed = seed, out_dir = out)))
+        self.call_json("cnfmp.sim.api", "render", move |py| {
+            Ok(kwargs!(py, task = task, seed = seed, out_dir = out, scan = scan))
+        })
     }
 
     /// The scripted expert's trajectory for (task, seed), at the control rate, and the prompt.

@@ -24,6 +24,11 @@ pub enum SimCommand {
         /// Output directory (must not exist, or be empty).
         #[arg(long)]
         out: PathBuf,
+        /// Also write the scene's depth scan from the four fixed cameras (front, left, right,
+        /// top) into OUT/scan: per view RGB, 16-bit depth in millimetres and label map
+        /// PNGs, and cameras.json with intrinsics and world-from-camera poses (OpenCV axes).
+        #[arg(long)]
+        scan: bool,
     },
     /// Write the scripted expert's trajectory for the scene.
     Expert {
@@ -62,9 +67,16 @@ pub fn run(command: SimCommand) -> Result<(), Failure> {
             let lines: Vec<String> = tasks.iter().map(|task| format!("{:<22} {}", task.name, task.description)).collect();
             print_stdout(&lines.join("\n"))?;
         }
-        SimCommand::Render { scene, out } => {
-            let info = Bridge::start_default()?.sim_render(&scene.task, scene.seed, &out)?;
-            eprintln!("{}: {} objects ({}), prompt: {}", out.display(), info.objects.len(), info.objects.join(", "), info.prompt);
+        SimCommand::Render { scene, out, scan } => {
+            let info = Bridge::start_default()?.sim_render(&scene.task, scene.seed, &out, scan)?;
+            eprintln!(
+                "{}: {} objects ({}), prompt: {}{}",
+                out.display(),
+                info.objects.len(),
+                info.objects.join(", "),
+                info.prompt,
+                if scan { "; scan of 4 views in scan/" } else { "" }
+            );
         }
         SimCommand::Expert { scene, out } => {
             let (arrays, prompt) = Bridge::start_default()?.sim_expert(&scene.task, scene.seed)?;

@@ -36,15 +36,17 @@ def _scene(task: str, seed: int):
     return get_task(task), get_task(task).scene(int(seed))
 
 
-def render(task: str, seed: int, out_dir: str) -> str:
+def render(task: str, seed: int, out_dir: str, scan: bool = False) -> str:
     """Writes the camera's view of the scene at the start of an episode (the gripper at its
     start pose, out of view for every task but wall_avoidance), exactly what frame 0 of a
     dataset episode shows, so a model sees the same kind of image it was trained on.
 
     Files in `out_dir` (created; must not exist or be empty): ``image.png`` (128x128 RGB),
     ``masks.png`` (128x128 8-bit label map: 0 background, k the k-th object),
-    ``objects.json`` (``{"task", "seed", "prompt", "objects": [names in label order]}``).
-    Written to a temporary directory first and renamed, so a failure leaves nothing behind.
+    ``objects.json`` (``{"task", "seed", "prompt", "objects": [names in label order]}``);
+    with `scan`, ``scan/``: the scene's depth scan from the four fixed cameras
+    (:mod:`cnfmp.sim.scan`, the gripper parked). Written to a temporary directory first
+    and renamed, so a failure leaves nothing behind.
     Returns the objects.json content.
     """
     from PIL import Image
@@ -67,6 +69,10 @@ def render(task: str, seed: int, out_dir: str) -> str:
         with open(os.path.join(staging, "objects.json"), "w", encoding="utf-8") as f:
             json.dump(info, f, indent=2)
             f.write("\n")
+        if scan:
+            from cnfmp.sim import scan as scans
+
+            scans.write_scan(scans.render_scan(scene), os.path.join(staging, "scan"))
         if os.path.isdir(out_dir):
             os.rmdir(out_dir)  # empty (checked above); rename needs the name free
         os.rename(staging, out_dir)

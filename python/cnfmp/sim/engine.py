@@ -107,24 +107,32 @@ class Simulation:
             self._renderer.close()
         self._renderer = mujoco.Renderer(self.model, height, width)
 
-    def _render(self, segmentation: bool) -> np.ndarray:
+    def _render(self, segmentation: bool, camera: str = "front", depth: bool = False) -> np.ndarray:
         if self._renderer is None:
             self._renderer = mujoco.Renderer(self.model, sc.IMAGE_SIZE, sc.IMAGE_SIZE)
         if segmentation:
             self._renderer.enable_segmentation_rendering()
         else:
             self._renderer.disable_segmentation_rendering()
-        self._renderer.update_scene(self.data, camera="front")
+        if depth:
+            self._renderer.enable_depth_rendering()
+        else:
+            self._renderer.disable_depth_rendering()
+        self._renderer.update_scene(self.data, camera=camera)
         return self._renderer.render()
 
-    def render_rgb(self) -> np.ndarray:
+    def render_rgb(self, camera: str = "front") -> np.ndarray:
         """(128, 128, 3) uint8 camera image of the current state."""
-        return self._render(segmentation=False).copy()
+        return self._render(segmentation=False, camera=camera).copy()
 
-    def render_labels(self) -> np.ndarray:
+    def render_depth(self, camera: str = "front") -> np.ndarray:
+        """(128, 128) float32 depth of the current state along the camera's optical axis (m)."""
+        return self._render(segmentation=False, camera=camera, depth=True).astype(np.float32)
+
+    def render_labels(self, camera: str = "front") -> np.ndarray:
         """(128, 128) uint8 label map of the current state: 0 background (and the gripper),
         k where the k-th object is visible."""
-        seg = self._render(segmentation=True)
+        seg = self._render(segmentation=True, camera=camera)
         geom_ids, types = seg[..., 0], seg[..., 1]
         is_geom = (types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (geom_ids >= 0)
         labels = np.zeros(geom_ids.shape, dtype=np.uint8)
@@ -134,15 +142,24 @@ class Simulation:
     def render_scene(self) -> tuple[np.ndarray, np.ndarray]:
         """The scene image with the gripper parked out of view, and its label map
         (see :meth:`render_labels`). The physical state is restored afterwards."""
+        (rgb, _, labels), = self.render_views(["front"], depth=False)
+        return rgb, labels
+
+    def render_views(self, cameras: list[str], depth: bool = True) -> list[tuple]:
+        """Per camera (MJCF names) the (rgb, depth or None, labels) of :meth:`render_rgb`,
+        :meth:`render_depth` and :meth:`render_labels`, with the gripper parked out of view;
+        the physical state is restored afterwards."""
         saved_qpos, saved_mocap = self.data.qpos.copy(), self.data.mocap_pos.copy()
         adr = self._gripper_qpos
         self.data.qpos[adr:adr + 3] = sc.PARK_POSITION
         self.data.mocap_pos[self._mocap] = sc.PARK_POSITION
         mujoco.mj_forward(self.model, self.data)
-        rgb, labels = self.render_rgb(), self.render_labels()
-        self.data.qpos[:], self.data.mocap_pos[:] = saved_qpos, saved_mocap
-        mujoco.mj_forward(self.model, self.data)
-        return rgb, labels
+        try:
+            return [(self.render_rgb(camera), self.render_depth(camera) if depth else None, self.render_labels(camera))
+                    for camera in cameras]
+        finally:
+            self.data.qpos[:], self.data.mocap_pos[:] = saved_qpos, saved_mocap
+            mujoco.mj_forward(self.model, self.data)
 
     def close(self) -> None:
         if self._renderer is not None:

@@ -1,7 +1,7 @@
 """Scene construction shared by every task: table, camera, the floating parallel-jaw gripper.
 
 World frame: metres, z up, table top at z = 0; the camera looks at the table from the front
-(-y side). The gripper is a free body welded (softly) to a mocap target, so it is dynamic and
+(-y side); three more cameras (left, right, top) see it for 3D scans. The gripper is a free body welded (softly) to a mocap target, so it is dynamic and
 its contacts are real: a wall it brushes reports a contact. Its frame's origin is the tool
 centre point (between the fingertips) and its +z axis points along the fingers; the
 trajectory poses are this frame's poses. Fingers slide along the gripper's y axis and are
@@ -28,6 +28,30 @@ CAMERA_POSITION = (0.0, -0.42, 0.50)
 CAMERA_XYAXES = (1.0, 0.0, 0.0, 0.0, 0.76, 0.65)
 CAMERA_FOVY_DEG = 45.0
 _CAMERA_POS, _CAMERA_XYAXES = (" ".join(map(str, v)) for v in (CAMERA_POSITION, CAMERA_XYAXES))
+#: The other fixed cameras of a scan (:mod:`cnfmp.sim.scan`), beside "front": name ->
+#: (position, the point it looks at), metres; the same field of view and image size.
+SCAN_CAMERAS = {
+    "left": ((-0.55, -0.15, 0.45), (0.0, 0.08, 0.05)),
+    "right": ((0.55, -0.15, 0.45), (0.0, 0.08, 0.05)),
+    "top": ((0.0, -0.10, 0.85), (0.0, 0.06, 0.0)),
+}
+
+
+def look_at_xyaxes(position, target) -> tuple[float, ...]:
+    """MuJoCo's ``xyaxes`` of a camera at `position` looking at `target` with the world's z
+    up in its image: its x axis (image right) then y axis (image up); it looks along -z."""
+    forward = np.asarray(target, float) - np.asarray(position, float)
+    forward /= np.linalg.norm(forward)
+    x_axis = np.cross(forward, [0.0, 0.0, 1.0])
+    x_axis /= np.linalg.norm(x_axis)
+    return (*x_axis, *np.cross(x_axis, forward))
+
+
+def _scan_cameras_xml() -> str:
+    return "".join(
+        f'\n    <camera name="{name}" pos="{" ".join(f"{v:.6f}" for v in position)}" '
+        f'xyaxes="{" ".join(f"{v:.6f}" for v in look_at_xyaxes(position, target))}" fovy="{CAMERA_FOVY_DEG}"/>'
+        for name, (position, target) in SCAN_CAMERAS.items())
 #: Gripper pose at the start of every expert trajectory: above the table, fingers down.
 HOME_POSITION = np.array([0.0, -0.05, 0.40])
 HOME_QUAT = geometry.quat_down(0.0)
@@ -86,7 +110,7 @@ def scene_xml(objects: str, extra_equality: str = "", table_rgba: str = "0.72 0.
   </visual>
   <worldbody>
     <light pos="0.3 -0.4 1.5" dir="-0.2 0.25 -1" diffuse="0.5 0.5 0.5" castshadow="false"/>
-    <camera name="front" pos="{_CAMERA_POS}" xyaxes="{_CAMERA_XYAXES}" fovy="{CAMERA_FOVY_DEG}"/>
+    <camera name="front" pos="{_CAMERA_POS}" xyaxes="{_CAMERA_XYAXES}" fovy="{CAMERA_FOVY_DEG}"/>{_scan_cameras_xml()}
     <geom name="floor" type="plane" size="2 2 0.1" pos="0 0 -0.75" rgba="0.35 0.36 0.38 1"/>
     <geom name="table" type="box" size="0.5 0.42 0.02" pos="0 0 -0.02" rgba="{table_rgba}" friction="1 0.005 0.0001"/>
     {objects}
