@@ -237,6 +237,12 @@ class CnfmpConfig(MotionConfig):
     search_candidates: int = 24
     #: Pixels of an object's dilated mask the cheap search scores candidates on.
     search_pixels: int = 128
+    #: A screen before that: every candidate is first scored on this many of those pixels
+    #: and only the best `search_screen_keep` go on to all `search_pixels` (the search costs
+    #: candidates x pixels, and most candidates are far off); 0 scores every candidate on
+    #: every search pixel.
+    search_screen_pixels: int = 32
+    search_screen_keep: int = 16
     #: Best candidates refined by gradient steps (multi-start).
     search_starts: int = 4
     #: Adam steps on the simplex logits per start, and their learning rate.
@@ -281,7 +287,7 @@ class CnfmpConfig(MotionConfig):
         for name in ["learning_rate", "latent_learning_rate"]:
             if not getattr(self, name) > 0:
                 raise InputError(f"{source}: {name} must be > 0, got {getattr(self, name)!r}")
-        for name in ["task_objects", "texels_per_pixel", "search_pool"]:
+        for name in ["task_objects", "texels_per_pixel", "search_pool", "search_screen_pixels", "search_screen_keep"]:
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
                 raise InputError(f"{source}: {name} must be a whole number >= 0, got {getattr(self, name)!r}")
         if not (isinstance(self.residual_grid_pixels, (int, float)) and self.residual_grid_pixels >= 0):

@@ -98,11 +98,9 @@ def fit_in_helper(message: HelperFits) -> list[tuple] | None:
         _HELPER_PREDICTORS.pop(message.key, None)
         return None
     if message.model is not None:
-        from cnfmp.core.models import model_type
-
         config, settings, state = message.model
         tensors = {name: torch.from_numpy(array) for name, array in state.items()}
-        model = model_type(config.model_type).from_state(config, tensors)
+        model = CnfmpModel.from_state(config, tensors)
         model.load_state_dict(tensors)
         _HELPER_PREDICTORS[message.key] = Predictor(model, settings)
     predictor = _HELPER_PREDICTORS.get(message.key)
@@ -206,7 +204,7 @@ class Predictor:
                 colour: torch.Tensor, centre: torch.Tensor, exact: bool = False) -> tuple[torch.Tensor, FittedPixels]:
         """The cheap search of slot `slot` (with the draws of :meth:`_draw`; the scene's image
         (R * R, 3), the object's colour (3,) and mask centroid (1, 2)): scores every candidate
-        on a few of its mask's pixels (the deformation residual interpolated from a coarse
+        on a few of its mask's pixels (first on fewer still, with `search_screen_pixels`) (the deformation residual interpolated from a coarse
         grid unless `exact`) and returns the best `search_starts` logits (S, K) with the
         pixels the refinement fits."""
         c = self.config
@@ -221,9 +219,14 @@ class Predictor:
             torch.log((known + m / k) / (1.0 + m) + 1e-6),
             self._nearest_centres(slot, torch.log(torch.from_numpy(random_points).float() + 1e-4), centre),
         ])
-        few = fitting.first(c.search_pixels)
-        coarse = None if exact else self._coarse_residual(few.coords)
         with torch.no_grad():
+            if c.search_screen_pixels and candidates.shape[0] > max(c.search_screen_keep, c.search_starts):
+                screen = fitting.first(min(c.search_screen_pixels, c.search_pixels))
+                losses, _ = self._object_loss(slot, candidates, screen,
+                                              coarse=None if exact else self._coarse_residual(screen.coords))
+                candidates = candidates[torch.argsort(losses)[: max(c.search_screen_keep, c.search_starts)]]
+            few = fitting.first(c.search_pixels)
+            coarse = None if exact else self._coarse_residual(few.coords)
             losses, _ = self._object_loss(slot, candidates, few, coarse=coarse)
         return candidates[torch.argsort(losses)[: c.search_starts]].clone(), fitting
 

@@ -27,7 +27,7 @@ from cnfmp.errors import InputError
 #: steps), paid once per demonstration at the end of training, so the motion learns from the
 #: best latents inference finds rather than from the cheaper fit a served model runs.
 REFIT_SEARCH = {"search_pool": 0, "search_candidates": 96, "search_starts": 4, "refine_steps": 20,
-                "refine_learning_rate": 0.2}
+                "refine_learning_rate": 0.2, "search_screen_pixels": 0}
 
 
 def fit_config_to_data(config: CnfmpConfig, demos: core_data.Demonstrations) -> CnfmpConfig:

@@ -1,7 +1,9 @@
 """Pictures of every task for the docs: ``python -m cnfmp.sim.gallery OUT_DIR [--seed S]``.
 
 For each task writes ``OUT_DIR/<task>.png``: the scene image beside its object masks (each
-label in its own colour), scaled 2x, from the held-out scene `seed`.
+label in its own colour), scaled 2x, from the held-out scene `seed`; with ``--scan TASK``,
+also ``OUT_DIR/<TASK>_scan.png``: that scene's four scan views (:mod:`cnfmp.sim.scan`), RGB
+above depth (near light, far dark) above labels.
 """
 
 from __future__ import annotations
@@ -33,17 +35,36 @@ def task_picture(task: str, seed: int) -> np.ndarray:
     return picture.repeat(2, axis=0).repeat(2, axis=1)
 
 
+def scan_picture(task: str, seed: int) -> np.ndarray:
+    """(3 * 128, 4 * 128, 3) uint8: each scan view's RGB, depth and labels in a column."""
+    from cnfmp.sim import scan
+
+    columns = []
+    for view in scan.render_scan(get_task(task).scene(seed)).views:
+        measured = view.depth > 0
+        near, far = np.percentile(view.depth[measured], [1, 99]) if measured.any() else (0.0, 1.0)
+        shade = np.where(measured, 255 * (1 - np.clip((view.depth - near) / max(far - near, 1e-6), 0, 1)), 0)
+        depth = np.repeat(shade.astype(np.uint8)[..., None], 3, axis=2)
+        columns.append(np.concatenate([view.rgb, depth, _PALETTE[view.labels % len(_PALETTE)]], axis=0))
+    return np.concatenate(columns, axis=1)
+
+
 def main(argv=None) -> int:
     from PIL import Image
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("out_dir")
     parser.add_argument("--seed", type=int, default=HELDOUT_SEEDS.start)
+    parser.add_argument("--scan", metavar="TASK", help="also picture this task's scan views")
     args = parser.parse_args(argv)
     os.makedirs(args.out_dir, exist_ok=True)
     for task in task_names():
         path = os.path.join(args.out_dir, f"{task}.png")
         Image.fromarray(task_picture(task, args.seed)).save(path, optimize=True)
+        print(path)
+    if args.scan:
+        path = os.path.join(args.out_dir, f"{args.scan}_scan.png")
+        Image.fromarray(scan_picture(args.scan, args.seed)).save(path, optimize=True)
         print(path)
     return 0
 
