@@ -342,6 +342,26 @@ def test_objects_fitted_on_a_helper_process_give_the_answers_of_this_process_alo
         helper_processes.stop()
 
 
+def test_the_screened_search_keeps_the_best_candidates_of_a_training_scene(trained, demos):
+    model, _ = trained
+    screened = Predictor(model, dataclasses.replace(model.config, search_screen_pixels=32, search_screen_keep=12))
+    full = Predictor(model, dataclasses.replace(model.config, search_screen_pixels=0))
+    agree = 0
+    for b in range(3):
+        inputs = core_data.scene_inputs(demos.images[b], demos.masks[b], model.config.num_objects,
+                                        model.config.field_resolution, model.config.mask_dilation)
+        for slot in range(model.config.num_objects):
+            rgb = torch.from_numpy(inputs.rgb.reshape(-1, 3))
+            colour, centre = torch.from_numpy(inputs.colour[slot]), torch.from_numpy(inputs.centre[slot])
+            draws = full._draw(np.flatnonzero(inputs.dilated[slot].reshape(-1)), np.random.default_rng(b))
+            assert 12 < 3 + model.config.num_endpoints + model.config.search_candidates, "the screen must drop some"
+            best_full = full._search(slot, *draws, rgb, colour, centre)[0][0]
+            starts = screened._search(slot, *draws, rgb, colour, centre)[0]
+            assert starts.shape == (model.config.search_starts, model.config.num_endpoints)
+            agree += bool((starts == best_full).all(dim=1).any())
+    assert agree >= 5, f"the screen lost the full search's best candidate in {6 - agree} of 6 fits"
+
+
 def test_the_search_scores_on_the_image_the_pool_points_whose_centres_lie_nearest_the_mask(trained):
     model, _ = trained
     predictor = Predictor(model)
