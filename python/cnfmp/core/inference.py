@@ -204,9 +204,9 @@ class Predictor:
                 colour: torch.Tensor, centre: torch.Tensor, exact: bool = False) -> tuple[torch.Tensor, FittedPixels]:
         """The cheap search of slot `slot` (with the draws of :meth:`_draw`; the scene's image
         (R * R, 3), the object's colour (3,) and mask centroid (1, 2)): scores every candidate
-        on a few of its mask's pixels (first on fewer still, with `search_screen_pixels`) (the deformation residual interpolated from a coarse
-        grid unless `exact`) and returns the best `search_starts` logits (S, K) with the
-        pixels the refinement fits."""
+        on a few of its mask's pixels, after a screen on fewer still (`search_screen_pixels`),
+        with the deformation residual interpolated from a coarse grid unless `exact`, and
+        returns the best `search_starts` logits (S, K) with the pixels the refinement fits."""
         c = self.config
         idx = torch.from_numpy(pixels)
         fitting = FittedPixels(self.coords[idx][None], colour[None], self.bg_rgb[:, idx], self.bg_logit[:, idx],
@@ -325,7 +325,8 @@ class Predictor:
     def _fit_on_helpers(self, jobs: list[tuple], helpers: list[helper_processes.HelperProcess]) -> list[tuple]:
         """The fits `jobs` (arguments of :meth:`_fit_object`) shared round-robin between this
         thread and the helper processes, each helper's share sent as one message; a share
-        whose helper is gone is fitted here."""
+        whose helper is gone is fitted here. A helper keeps the copy of this predictor it got
+        first, settings included: change settings by making a new Predictor, not in place."""
         lanes = len(helpers) + 1
         shares = [jobs[lane::lanes] for lane in range(lanes)]
         pending = []  # (future or None, share) per helper with a share
