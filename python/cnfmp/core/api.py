@@ -135,9 +135,9 @@ def _decoded_scene(config, image_png: bytes, masks_png: bytes, objects: list[str
 def _document(model_dir: str, c, result: dict, objects: list[str], timings_ms: dict) -> str:
     """The JSON answer of :func:`predict` for one scene's prediction `result`."""
     traj = result["trajectory"]
-    frames = [{"t": round(float(t), 6), "position": p.round(6).tolist(), "orientation": q.round(6).tolist(),
-               "gripper": round(float(g), 6)}
-              for t, p, q, g in zip(traj["t"], traj["position"], traj["orientation"], traj["gripper"])]
+    # Rounded and converted as whole arrays: per frame, numpy calls cost ~3 ms a scene.
+    columns = [np.asarray(traj[key], dtype=np.float64).round(6).tolist() for key in ("t", "position", "orientation", "gripper")]
+    frames = [{"t": t, "position": p, "orientation": q, "gripper": g} for t, p, q, g in zip(*columns)]
     slots = []
     for slot in range(c.num_objects if isinstance(c, CnfmpConfig) else 0):
         present = bool(result["present"][slot])

@@ -18,6 +18,7 @@ code on the same weights, so every answer is the same bit for bit wherever its o
 
 from __future__ import annotations
 
+import collections
 import itertools
 import os
 import sys
@@ -323,37 +324,49 @@ class Predictor:
         return results
 
     def _fit_on_helpers(self, jobs: list[tuple], helpers: list[helper_processes.HelperProcess]) -> list[tuple]:
-        """The fits `jobs` (arguments of :meth:`_fit_object`) shared round-robin between this
-        thread and the helper processes, each helper's share sent as one message; a share
-        whose helper is gone is fitted here. A helper keeps the copy of this predictor it got
-        first, settings included: change settings by making a new Predictor, not in place."""
-        lanes = len(helpers) + 1
-        shares = [jobs[lane::lanes] for lane in range(lanes)]
-        pending = []  # (future or None, share) per helper with a share
-        with self._helper_lock:
-            for helper, share in zip(helpers, shares[1:]):
-                if not share:
-                    continue
-                pid, model = helper.process.pid, None
-                if pid not in self._sent_to:
-                    model = (self.model.config, self.config,
-                             {name: value.numpy() for name, value in self.model.state_dict().items()})
+        """The fits `jobs` (arguments of :meth:`_fit_object`) shared between this thread and
+        the helper processes: each takes the next unfitted job when it is free (fits cost
+        20-50 ms each and a round trip to a helper 1-2 ms, and which lane is faster varies),
+        so a batch's lanes end together. A job whose helper is gone is fitted here. A helper
+        keeps the copy of this predictor it got first, settings included: change settings by
+        making a new Predictor, not in place."""
+        waiting = collections.deque(range(len(jobs)))
+        results: list = [None] * len(jobs)
+        take_lock = threading.Lock()
+
+        def take() -> int | None:
+            with take_lock:
+                return waiting.popleft() if waiting else None
+
+        def drive(helper: helper_processes.HelperProcess) -> None:
+            """Feeds `helper` one job at a time until none is left or it fails."""
+            while (j := take()) is not None:
                 try:
-                    pending.append((helper.submit(HELPER_HANDLER, HelperFits(self._helper_key, model, share)), share))
-                    self._sent_to.add(pid)
-                except helper_processes.HelperError:
-                    pending.append((None, share))
-        results = [[self._fit_object(*job) for job in shares[0]]]
-        for future, share in pending:
-            try:
-                if future is None:
-                    raise helper_processes.HelperError("its helper process closed")
-                results.append([_as_tensors(fit) for fit in future.result()])
-            except helper_processes.HelperError as err:
-                print(f"cnfmp: {err}; fitting its objects in this process", file=sys.stderr)
-                results.append([self._fit_object(*job) for job in share])
-        # Back to the jobs' order: job j was the (j // lanes)-th of lane j % lanes.
-        return [results[j % lanes][j // lanes] for j in range(len(jobs))]
+                    with self._helper_lock:  # the first message to a helper carries the model
+                        model = None
+                        if helper.process.pid not in self._sent_to:
+                            model = (self.model.config, self.config,
+                                     {name: value.numpy() for name, value in self.model.state_dict().items()})
+                        future = helper.submit(HELPER_HANDLER, HelperFits(self._helper_key, model, [jobs[j]]))
+                        self._sent_to.add(helper.process.pid)
+                    results[j] = _as_tensors(future.result()[0])
+                except helper_processes.HelperError as err:
+                    print(f"cnfmp: {err}; fitting its objects in this process", file=sys.stderr)
+                    with take_lock:
+                        waiting.appendleft(j)
+                    return
+
+        drivers = [threading.Thread(target=drive, args=(helper,), name="cnfmp-helper-feed") for helper in helpers]
+        for driver in drivers:
+            driver.start()
+        while (j := take()) is not None:
+            results[j] = self._fit_object(*jobs[j])
+        for driver in drivers:
+            driver.join()
+        # A driver that failed after the last take put its job back.
+        while (j := take()) is not None:
+            results[j] = self._fit_object(*jobs[j])
+        return results
 
     def _fit_object(self, inputs: core_data.SceneInputs, slot: int, draws: tuple[np.ndarray, np.ndarray],
                     exact: bool, render: bool = False) -> tuple[torch.Tensor, float, tuple | None]:
