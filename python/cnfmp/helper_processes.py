@@ -26,10 +26,14 @@ import socket
 import subprocess
 import sys
 import threading
+from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from multiprocessing.connection import Connection
+from typing import Callable, TypeVar
 
-__all__ = ["HelperError", "HelperProcess", "default_count", "helpers", "start", "stop"]
+T = TypeVar("T")
+
+__all__ = ["HelperError", "HelperProcess", "default_count", "helpers", "share", "start", "stop"]
 
 
 class HelperError(RuntimeError):
@@ -135,6 +139,44 @@ def start(count: int | None = None, preload: tuple[str, ...] = ()) -> int:
 def helpers() -> list[HelperProcess]:
     """The running helpers that still answer (empty unless :func:`start` was called)."""
     return [helper for helper in _HELPERS if not helper.broken]
+
+
+def share(count: int, here: Callable[[int], T], there: Callable[["HelperProcess", int], T],
+          helpers_to_use: list["HelperProcess"] | None = None) -> list[T]:
+    """Runs jobs 0..count-1 on this thread (``here(j)``) and on the helpers (``there(helper,
+    j)``, which submits job j to `helper` and waits for its answer), each taking the next
+    job when it is free, so that all end together however their speeds differ; returns the
+    answers in job order. A helper that fails (:class:`HelperError`) is reported on stderr
+    and its job done here. `helpers_to_use`: default :func:`helpers`."""
+    waiting = deque(range(count))
+    answers: list = [None] * count
+    lock = threading.Lock()
+
+    def take() -> int | None:
+        with lock:
+            return waiting.popleft() if waiting else None
+
+    def feed(helper: HelperProcess) -> None:
+        while (j := take()) is not None:
+            try:
+                answers[j] = there(helper, j)
+            except HelperError as err:
+                print(f"cnfmp: {err}; doing its work in this process", file=sys.stderr)
+                with lock:
+                    waiting.appendleft(j)
+                return
+
+    feeders = [threading.Thread(target=feed, args=(helper,), name="cnfmp-helper-feed")
+               for helper in (helpers() if helpers_to_use is None else helpers_to_use)]
+    for feeder in feeders:
+        feeder.start()
+    while (j := take()) is not None:
+        answers[j] = here(j)
+    for feeder in feeders:
+        feeder.join()
+    while (j := take()) is not None:  # put back by a feeder that failed after our last take
+        answers[j] = here(j)
+    return answers
 
 
 def stop() -> None:

@@ -199,6 +199,21 @@ def test_a_batch_of_segmentations_matches_each_alone_and_a_bad_request_fails_alo
     for one, other in zip(alone[:3], together[:3]):
         assert one["labels_png"] == other["labels_png"] and one["slot_names"] == other["slot_names"]
     assert alone[1]["labels_png"] != alone[2]["labels_png"], "the scenes must differ for the check to mean anything"
+    # Shared with a helper process: the same answers, the same per-request errors.
+    from cnfmp import helper_processes
+
+    helper_processes.stop()
+    try:
+        assert helper_processes.start(1) == 1
+        shared = api.segment_batch(requests)
+    finally:
+        helper_processes.stop()
+    assert isinstance(shared[3], NotGrounded) and isinstance(shared[4], InputError)
+    for one, other in zip(alone[:3], shared[:3]):
+        assert one["labels_png"] == other["labels_png"] and one["slot_names"] == other["slot_names"]
+        found, found_there = json.loads(one["json"]), json.loads(other["json"])
+        found.pop("timings_ms"), found_there.pop("timings_ms")
+        assert found == found_there
 
 
 def test_preload_resolves_auto_to_the_shipped_film_backend_and_warms_it():

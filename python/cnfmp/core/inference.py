@@ -18,7 +18,6 @@ code on the same weights, so every answer is the same bit for bit wherever its o
 
 from __future__ import annotations
 
-import collections
 import itertools
 import os
 import sys
@@ -325,48 +324,22 @@ class Predictor:
 
     def _fit_on_helpers(self, jobs: list[tuple], helpers: list[helper_processes.HelperProcess]) -> list[tuple]:
         """The fits `jobs` (arguments of :meth:`_fit_object`) shared between this thread and
-        the helper processes: each takes the next unfitted job when it is free (fits cost
-        20-50 ms each and a round trip to a helper 1-2 ms, and which lane is faster varies),
-        so a batch's lanes end together. A job whose helper is gone is fitted here. A helper
-        keeps the copy of this predictor it got first, settings included: change settings by
-        making a new Predictor, not in place."""
-        waiting = collections.deque(range(len(jobs)))
-        results: list = [None] * len(jobs)
-        take_lock = threading.Lock()
+        the helper processes, each taking the next unfitted object when it is free
+        (:func:`cnfmp.helper_processes.share`: fits cost 20-50 ms, a round trip 1-2 ms). A
+        helper keeps the copy of this predictor it got first, settings included: change
+        settings by making a new Predictor, not in place."""
 
-        def take() -> int | None:
-            with take_lock:
-                return waiting.popleft() if waiting else None
+        def there(helper: helper_processes.HelperProcess, j: int) -> tuple:
+            with self._helper_lock:  # the first message to a helper carries the model
+                model = None
+                if helper.process.pid not in self._sent_to:
+                    model = (self.model.config, self.config,
+                             {name: value.numpy() for name, value in self.model.state_dict().items()})
+                future = helper.submit(HELPER_HANDLER, HelperFits(self._helper_key, model, [jobs[j]]))
+                self._sent_to.add(helper.process.pid)
+            return _as_tensors(future.result()[0])
 
-        def drive(helper: helper_processes.HelperProcess) -> None:
-            """Feeds `helper` one job at a time until none is left or it fails."""
-            while (j := take()) is not None:
-                try:
-                    with self._helper_lock:  # the first message to a helper carries the model
-                        model = None
-                        if helper.process.pid not in self._sent_to:
-                            model = (self.model.config, self.config,
-                                     {name: value.numpy() for name, value in self.model.state_dict().items()})
-                        future = helper.submit(HELPER_HANDLER, HelperFits(self._helper_key, model, [jobs[j]]))
-                        self._sent_to.add(helper.process.pid)
-                    results[j] = _as_tensors(future.result()[0])
-                except helper_processes.HelperError as err:
-                    print(f"cnfmp: {err}; fitting its objects in this process", file=sys.stderr)
-                    with take_lock:
-                        waiting.appendleft(j)
-                    return
-
-        drivers = [threading.Thread(target=drive, args=(helper,), name="cnfmp-helper-feed") for helper in helpers]
-        for driver in drivers:
-            driver.start()
-        while (j := take()) is not None:
-            results[j] = self._fit_object(*jobs[j])
-        for driver in drivers:
-            driver.join()
-        # A driver that failed after the last take put its job back.
-        while (j := take()) is not None:
-            results[j] = self._fit_object(*jobs[j])
-        return results
+        return helper_processes.share(len(jobs), lambda j: self._fit_object(*jobs[j]), there, helpers)
 
     def _fit_object(self, inputs: core_data.SceneInputs, slot: int, draws: tuple[np.ndarray, np.ndarray],
                     exact: bool, render: bool = False) -> tuple[torch.Tensor, float, tuple | None]:

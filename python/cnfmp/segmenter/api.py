@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 
 import cv2
 import numpy as np
 
-from cnfmp import runtime
+from cnfmp import helper_processes, runtime
 from cnfmp.errors import InputError
 from cnfmp.images import decode_image, encode_png
 from cnfmp.segmenter import Segmentation, order_by_roles, phrases, segment as segment_array, task_roles
@@ -44,8 +45,16 @@ def preload(name: str = "auto", weights: str | None = None) -> str:
     loaded = backend(name, weights)
     loaded.warm(phrases.canonical_texts())
     blank = encode_png(np.full((128, 128, 3), 128, dtype=np.uint8))
-    # The request path, once on every thread a batch's segmentations run on.
-    runtime.on_every_worker(lambda: segment(blank, "put the red cube on the paper", name, weights, pictures=False))
+    # The request path, once on every thread a batch's segmentations run on, and in every
+    # helper process, which loads the backend for its share of a batch.
+    request = dict(image_data=blank, prompt="put the red cube on the paper", backend_name=name, weights=weights,
+                   pictures=False)
+    runtime.on_every_worker(lambda: segment(**request))
+    for helper in helper_processes.helpers():
+        try:
+            helper.submit(f"{__name__}:segment_or_error", request).result()
+        except helper_processes.HelperError as err:
+            print(f"cnfmp: {err}; its share of segmentation is done in this process", file=sys.stderr)
     return loaded.name
 
 
@@ -117,8 +126,9 @@ def segment(image_data: bytes, prompt: str, backend_name: str = "auto", weights:
 
 
 def segment_batch(requests: list[dict]) -> list:
-    """:func:`segment` for several requests at once (a server's batch), side by side on the
-    worker pool (:func:`cnfmp.runtime.worker_pool`).
+    """:func:`segment` for several requests at once (a server's batch): shared with the
+    helper processes where they run (:func:`cnfmp.helper_processes.share`), else side by
+    side on the worker pool (:func:`cnfmp.runtime.worker_pool`).
 
     Args:
         requests: one dict of :func:`segment`'s keyword arguments per image.
@@ -126,13 +136,21 @@ def segment_batch(requests: list[dict]) -> list:
     Returns one entry per request, in order: what :func:`segment` returns, or the
     :class:`cnfmp.errors.InputError` that request raised (its bad input fails it alone).
     """
-    def one(request: dict):
-        try:
-            return segment(**request)
-        except InputError as err:
-            return err
+    helpers = helper_processes.helpers()
+    if helpers and len(requests) > 1:
+        return helper_processes.share(
+            len(requests), lambda j: segment_or_error(requests[j]),
+            lambda helper, j: helper.submit(f"{__name__}:segment_or_error", requests[j]).result())
+    return list(runtime.worker_pool().map(segment_or_error, requests))
 
-    return list(runtime.worker_pool().map(one, requests))
+
+def segment_or_error(request: dict):
+    """:func:`segment` of one request's keyword arguments, or the InputError it raised (a
+    helper process's handler too)."""
+    try:
+        return segment(**request)
+    except InputError as err:
+        return err
 
 
 def train(out_dir: str, config_path: str | None, steps: int | None, seed: int | None, scenes_scale: float | None,
