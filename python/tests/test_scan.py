@@ -1,4 +1,4 @@
-"""Scans (cnfmp.sim.scan): the simulator's four depth views back-project onto the scene's
+"""Scans (cnfmp.scan, cnfmp.sim.scan): the simulator's four depth views back-project onto the scene's
 true geometry, survive the file format, and bad scans are refused naming view and file."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ import pytest
 from PIL import Image
 
 from cnfmp.errors import InputError
-from cnfmp.sim import scan as scans
+from cnfmp import scan as scans
+from cnfmp.sim.scan import render_scan
 from cnfmp.sim.tasks import drawer_place
 
 
@@ -22,7 +23,7 @@ def scene():
 
 @pytest.fixture(scope="module")
 def scan(scene):
-    return scans.render_scan(scene)
+    return render_scan(scene)
 
 
 @pytest.fixture

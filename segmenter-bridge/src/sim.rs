@@ -238,10 +238,10 @@ impl Bridge {
         })
     }
 
-    pub fn dataset_generate(&self, task: &str, episodes: u64, seed: u64, out: &Path, workers: u32) -> Result<DatasetReport, BridgeError> {
+    pub fn dataset_generate(&self, task: &str, episodes: u64, seed: u64, out: &Path, workers: u32, scan: Option<bool>) -> Result<DatasetReport, BridgeError> {
         let (task, out) = (task.to_owned(), out.to_path_buf());
         self.call_json("cnfmp.data.generate", "generate_dataset", move |py| {
-            Ok(kwargs!(py, task = task, episodes = episodes, seed = seed, out_dir = out, workers = workers))
+            Ok(kwargs!(py, task = task, episodes = episodes, seed = seed, out_dir = out, workers = workers, scan = scan))
         })
     }
 }

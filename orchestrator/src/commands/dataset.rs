@@ -32,6 +32,14 @@ pub enum DatasetCommand {
         /// Simulation worker processes.
         #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
         workers: u32,
+        /// Also record each episode's scan before the expert moves (the four cameras' depth
+        /// and label maps with their intrinsics and poses, for 3D models). Default: on for
+        /// tasks whose scenes one image does not tell (drawer_place), off otherwise.
+        #[arg(long, overrides_with = "no_scan")]
+        scan: bool,
+        /// Do not record scans, even for a task that records them by default.
+        #[arg(long)]
+        no_scan: bool,
     },
     /// Convert recorded demonstrations into a LeRobot v3.0 dataset (or a dataset back into
     /// raw episode folders). Resumable: rerun the same command after an interruption.
@@ -100,11 +108,12 @@ pub enum DatasetCommand {
 
 pub fn run(command: DatasetCommand) -> Result<(), Failure> {
     match command {
-        DatasetCommand::Generate { task, episodes, seed, out, workers } => {
+        DatasetCommand::Generate { task, episodes, seed, out, workers, scan, no_scan } => {
             if out.exists() {
                 return Err(Failure::BadInput(format!("{} already exists; datasets are never overwritten, choose a new --out", out.display())));
             }
-            let report = Bridge::start_default()?.dataset_generate(&task, episodes, seed, &out, workers)?;
+            let scan = if scan { Some(true) } else if no_scan { Some(false) } else { None };
+            let report = Bridge::start_default()?.dataset_generate(&task, episodes, seed, &out, workers, scan)?;
             print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))?;
         }
         DatasetCommand::Convert { from, out, to, fps, workers, strict } => {

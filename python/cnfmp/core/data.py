@@ -43,6 +43,8 @@ class Demonstrations:
         gripper_range: the recorded gripper values read as 0 and 1 (None: kept as recorded).
         roles: per demonstration, the prompt role of each object in label order, where
             `cnfmp dataset annotate` recorded them (else empty).
+        scans: per demonstration, the scan taken before it (:class:`cnfmp.scan.Scan`),
+            where the dataset records scans (else empty).
     """
 
     task: str
@@ -57,6 +59,7 @@ class Demonstrations:
     layout: MotionLayout | None = None
     gripper_range: tuple[float, float] | None = None
     roles: list[list[str]] = dataclasses.field(default_factory=list)
+    scans: list = dataclasses.field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.trajectories)
@@ -112,6 +115,7 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
     """
     # Imported here: the dataset readers pull in the simulator and scipy, which inference
     # (scene_inputs, a cold `cnfmp predict`) never needs.
+    from cnfmp import scan as scans
     from cnfmp.data import recorded
     from cnfmp.data.lerobot_io import annotated_scene, first_frame, open_dataset
 
@@ -136,8 +140,14 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
     starts = dataset.meta.episodes["dataset_from_index"]
     ends = dataset.meta.episodes["dataset_to_index"]
     images, masks, objects, episodes, seeds, prompts, roles, tasks = [], [], [], [], [], [], [], set()
+    scanned = []
     for episode, (start, end) in enumerate(zip(starts, ends)):
         first, image = first_frame(dataset, episode, camera)
+        if scans.CAMERAS_FEATURE in features:
+            row = {key: (value.permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+                   if key != scans.CAMERAS_FEATURE else value
+                   for key, value in first.items() if key.startswith(scans.SCAN_FEATURE_PREFIX)}
+            scanned.append(scans.from_dataset_row(row, f"{dataset_dir}: episode {episode}"))
         images.append(image)
         masks.append(np.asarray(first["annotation.masks"], dtype=np.uint8))
         if masks[-1].shape != images[-1].shape[:2]:
@@ -155,7 +165,7 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
         raise InputError(f"{dataset_dir}: episodes of several tasks ({', '.join(sorted(tasks))}); train one task per model")
     trajectories, scale = recorded.to_poses(episodes, layout)
     return Demonstrations(tasks.pop(), float(dataset.fps), np.stack(images), np.stack(masks), objects,
-                          trajectories, seeds, prompts, camera, layout, scale, roles)
+                          trajectories, seeds, prompts, camera, layout, scale, roles, scanned)
 
 
 def task_object_labels(labels: np.ndarray, count: int) -> np.ndarray:

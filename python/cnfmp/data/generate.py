@@ -10,7 +10,10 @@ Layout (design.md): per frame at :data:`DATASET_FPS`,
 finger opening), ``action`` (commanded pose + gripper of the next frame), the prompt as the
 lerobot task, ``annotation.masks`` (128x128 uint8 label map of the frame), ``annotation.objects``
 (JSON list of object names in label order) and ``annotation.scene`` (JSON
-``{"task", "seed"}``: the scene this episode was recorded in).
+``{"task", "seed"}``: the scene this episode was recorded in); with scans (``--scan``, the
+default of tasks that record them), also each episode's scan before the expert moves, on
+every frame (``annotation.scan.<camera>`` and ``annotation.scan.cameras``, see
+:mod:`cnfmp.scan`).
 An episode whose expert run fails the judge is skipped (and reported); the next seed is used.
 """
 
@@ -37,10 +40,14 @@ STATE_NAMES = ["x", "y", "z", "qw", "qx", "qy", "qz", "gripper"]
 IMAGE_KEY = "observation.images.front"
 
 
-def features(height: int = sc.IMAGE_SIZE, width: int = sc.IMAGE_SIZE) -> dict:
+def features(height: int = sc.IMAGE_SIZE, width: int = sc.IMAGE_SIZE, scan=None) -> dict:
     """The LeRobot feature specification of our datasets (simulated: 128x128 images;
-    converted: the source camera's size)."""
+    converted: the source camera's size), with the features of `scan`'s views when given
+    (a :class:`cnfmp.scan.Scan` of the same rig)."""
+    from cnfmp import scan as scans
+
     return {
+        **(scans.dataset_features(scan) if scan is not None else {}),
         IMAGE_KEY: {"dtype": "image", "shape": (height, width, 3), "names": ["height", "width", "channels"]},
         "observation.state": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
         "action": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
@@ -52,16 +59,19 @@ def features(height: int = sc.IMAGE_SIZE, width: int = sc.IMAGE_SIZE) -> dict:
     }
 
 
-def simulate_episode(task_name: str, seed: int) -> dict:
+def simulate_episode(task_name: str, seed: int, scan: bool = False) -> dict:
     """Runs the expert for (task, seed) and records it at DATASET_FPS.
 
     Returns ``{"task", "seed", "success", "reasons", "prompt", "objects", "images" (N,128,128,3) uint8,
-    "masks" (N,128,128) uint8, "state" (N,8) float32, "action" (N,8) float32}``.
+    "masks" (N,128,128) uint8, "state" (N,8) float32, "action" (N,8) float32, "scan"}``; "scan" is
+    the scene's :class:`cnfmp.scan.Scan` before the episode when `scan`, else None.
     """
     from cnfmp.sim import engine
+    from cnfmp.sim.scan import render_scan
 
     task = get_task(task_name)
     scene = task.scene(seed)
+    scanned = render_scan(scene) if scan else None
     path = task.expert(scene)
     every = sc.CONTROL_HZ // DATASET_FPS
     sim = engine.Simulation(scene)
@@ -79,7 +89,7 @@ def simulate_episode(task_name: str, seed: int) -> dict:
         "task": task_name, "seed": seed, "success": verdict.success, "reasons": verdict.reasons,
         "prompt": scene.prompt, "objects": scene.objects,
         "images": np.stack(rgb), "masks": np.stack(masks),
-        "state": state.astype(np.float32), "action": action.astype(np.float32),
+        "state": state.astype(np.float32), "action": action.astype(np.float32), "scan": scanned,
     }
 
 
@@ -108,9 +118,10 @@ def _check_request(task: str, episodes: int, seed: int, out_dir: str) -> None:
 
 
 def generate_dataset(task: str, episodes: int, seed: int, out_dir: str, workers: int = 2,
-                     progress: bool = True) -> str:
+                     progress: bool = True, scan: bool | None = None) -> str:
     """Writes a LeRobot dataset of `episodes` successful expert demonstrations of `task`,
-    from seeds `seed`, `seed + 1`, ... (a seed whose expert run fails is skipped).
+    from seeds `seed`, `seed + 1`, ... (a seed whose expert run fails is skipped), with each
+    episode's scan when `scan` (None: when the task records scans, ``Task.records_scans``).
 
     Returns JSON ``{"out", "episodes", "frames", "seeds", "skipped_seeds", "seconds",
     "episodes_per_second"}``. Raises InputError for an unknown task, episodes <= 0, an
@@ -121,6 +132,8 @@ def generate_dataset(task: str, episodes: int, seed: int, out_dir: str, workers:
 
     datasets.disable_progress_bars()  # one bar per episode write would drown ours
     _check_request(task, episodes, seed, out_dir)
+    if scan is None:
+        scan = get_task(task).records_scans
     out_dir = os.path.abspath(out_dir)
     parent = os.path.dirname(out_dir)
     os.makedirs(parent, exist_ok=True)
@@ -131,18 +144,21 @@ def generate_dataset(task: str, episodes: int, seed: int, out_dir: str, workers:
     bar = progress_bar(episodes, f"{task}", progress)
     context = multiprocessing.get_context("spawn")  # fork is unsafe in a threaded (embedded) parent
     try:
-        dataset = LeRobotDataset.create(repo_id=f"cnfmp/{task}", fps=DATASET_FPS, features=features(),
-                                        root=staging, robot_type="cnfmp_floating_gripper", use_videos=False)
+        dataset = None  # created with the first episode, whose scan says the views' features
         with context.Pool(workers, initializer=_worker_init) as pool:
             next_seed = seed
             while len(written) < episodes:
                 # Ask for exactly as many episodes as are missing (more after skipped seeds).
-                batch = [(task, s) for s in range(next_seed, next_seed + episodes - len(written))]
+                batch = [(task, s, scan) for s in range(next_seed, next_seed + episodes - len(written))]
                 next_seed += len(batch)
                 for episode in pool.imap(_simulate, batch):
                     if not episode["success"]:
                         skipped.append(episode["seed"])
                         continue
+                    if dataset is None:
+                        dataset = LeRobotDataset.create(repo_id=f"cnfmp/{task}", fps=DATASET_FPS,
+                                                        features=features(scan=episode["scan"]), root=staging,
+                                                        robot_type="cnfmp_floating_gripper", use_videos=False)
                     frames += _write_episode(dataset, episode)
                     written.append(episode["seed"])
                     bar.update(1)
@@ -163,10 +179,14 @@ def generate_dataset(task: str, episodes: int, seed: int, out_dir: str, workers:
 
 
 def _write_episode(dataset, episode: dict) -> int:
+    from cnfmp import scan as scans
+
     objects = json.dumps(episode["objects"])
     scene = json.dumps({"task": episode["task"], "seed": episode["seed"]})
+    scanned = scans.dataset_values(episode["scan"]) if episode["scan"] is not None else {}
     for i in range(len(episode["images"])):
         dataset.add_frame({
+            **scanned,
             IMAGE_KEY: episode["images"][i],
             "observation.state": episode["state"][i],
             "action": episode["action"][i],

@@ -178,8 +178,10 @@ def from_poses(poses: np.ndarray, layout: MotionLayout, gripper_range: tuple[flo
 
 
 def camera_keys(features: dict) -> list[str]:
-    """The dataset's camera features (``image`` or ``video``), in the dataset's order."""
-    return [key for key, spec in features.items() if spec.get("dtype") in ("image", "video")]
+    """The dataset's camera features (``image`` or ``video``), in the dataset's order; a
+    scan's packed depth views (``annotation.*``, :mod:`cnfmp.scan`) are not cameras."""
+    return [key for key, spec in features.items()
+            if spec.get("dtype") in ("image", "video") and not key.startswith("annotation.")]
 
 
 def choose_camera(features: dict, requested: str | None, annotated: str | None) -> str:

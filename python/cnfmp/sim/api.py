@@ -70,9 +70,10 @@ def render(task: str, seed: int, out_dir: str, scan: bool = False) -> str:
             json.dump(info, f, indent=2)
             f.write("\n")
         if scan:
-            from cnfmp.sim import scan as scans
+            from cnfmp import scan as scans
+            from cnfmp.sim.scan import render_scan
 
-            scans.write_scan(scans.render_scan(scene), os.path.join(staging, "scan"))
+            scans.write_scan(render_scan(scene), os.path.join(staging, "scan"))
         if os.path.isdir(out_dir):
             os.rmdir(out_dir)  # empty (checked above); rename needs the name free
         os.rename(staging, out_dir)

@@ -67,6 +67,9 @@ class Task:
     scene: Callable[[int], Scene]
     expert: Callable[[Scene], dict]
     judge: Callable[[Scene, "object"], Verdict]
+    #: Whether its datasets record each episode's scan by default (`cnfmp dataset generate`
+    #: without --scan / --no-scan): a task whose scenes a single image does not tell.
+    records_scans: bool = False
 
     def __post_init__(self):
         # One line without the "name:" lead of the module docstrings, for listings.

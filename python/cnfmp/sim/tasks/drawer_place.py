@@ -185,4 +185,4 @@ def judge(scene: Scene, log) -> Verdict:
     return Verdict(not reasons, reasons, metrics)
 
 
-TASK = Task("drawer_place", __doc__.split("\n\n")[0], make_scene, expert, judge)
+TASK = Task("drawer_place", __doc__.split("\n\n")[0], make_scene, expert, judge, records_scans=True)
