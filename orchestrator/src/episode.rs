@@ -3,6 +3,8 @@
 //! scripted expert (MED). `cnfmp eval` predicts in process between render and execute,
 //! `cnfmp demo` over HTTP; the Table-I benchmark runs `cnfmp eval`.
 
+use std::path::PathBuf;
+
 use segmenter_bridge::{Bridge, BridgeError, SceneInfo};
 use serde_json::Map;
 use tempfile::TempDir;
@@ -28,6 +30,8 @@ pub struct RenderedScene {
     /// The image (PNG) and the label map of its objects (PNG; label k = `info.objects[k-1]`).
     pub image: Vec<u8>,
     pub masks: Vec<u8>,
+    /// The scan directory (`cnfmp.scan`), when the scene was rendered with its scan.
+    pub scan: Option<PathBuf>,
 }
 
 /// The judge's verdict on a trajectory, or why it could not be executed.
@@ -44,12 +48,21 @@ impl<'a> Simulator<'a> {
         Ok(Simulator { bridge, control_hz: bridge.sim_control_hz()?, scratch })
     }
 
-    /// Renders the scene of (`task`, `seed`).
-    pub fn render(&self, task: &str, seed: u64) -> Result<RenderedScene, Failure> {
+    /// Renders the scene of (`task`, `seed`), with its scan when `scan`.
+    pub fn render(&self, task: &str, seed: u64, scan: bool) -> Result<RenderedScene, Failure> {
         let dir = self.scratch.path().join(format!("{task}-{seed}"));
-        let info = self.bridge.sim_render(task, seed, &dir, false)?;
+        if dir.exists() {
+            // A second render of the same scene (a rerun in one process) starts clean.
+            std::fs::remove_dir_all(&dir).map_err(|err| Failure::Environment(format!("cannot clear {}: {err}", dir.display())))?;
+        }
+        let info = self.bridge.sim_render(task, seed, &dir, scan)?;
         let read = |name: &str, what: &str| read_bytes(&dir.join(name), what);
-        Ok(RenderedScene { image: read("image.png", "rendered image")?, masks: read("masks.png", "rendered masks")?, info })
+        Ok(RenderedScene {
+            image: read("image.png", "rendered image")?,
+            masks: read("masks.png", "rendered masks")?,
+            info,
+            scan: scan.then(|| dir.join("scan")),
+        })
     }
 
     /// `trajectory` resampled at the control rate, as it is executed and compared.

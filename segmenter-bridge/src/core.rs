@@ -159,6 +159,21 @@ pub struct ModelDescription {
     /// Rate (Hz) and length (s) of the trajectories it produces.
     pub output_fps: f64,
     pub duration_s: f64,
+    /// What a scene is for this model: "image" (an image and coarse masks) or "scan"
+    /// (calibrated depth views, `cnfmp-3d`).
+    #[serde(default = "image_input")]
+    pub input: String,
+}
+
+fn image_input() -> String {
+    "image".into()
+}
+
+impl ModelDescription {
+    /// Whether the model predicts from scans rather than images.
+    pub fn takes_scans(&self) -> bool {
+        self.input == "scan"
+    }
 }
 
 impl Bridge {
@@ -241,6 +256,24 @@ impl Bridge {
                 Ok(prediction)
             })
             .collect())
+    }
+
+    /// Predicts the trajectory for the scan in `scan_dir` (`cameras.json` with depth and label
+    /// maps, `cnfmp.scan`) with the (resident) cnfmp-3d model in `model_dir`
+    /// (`cnfmp.core.api.predict_scan`). A bad scan is `InvalidInput`.
+    pub fn core_predict_scan(&self, model_dir: &Path, scan_dir: &Path) -> Result<Prediction, BridgeError> {
+        let (model_dir, scan_dir) = (model_dir.to_path_buf(), scan_dir.to_path_buf());
+        let json: String = self.call(move |py| {
+            let run = || -> PyResult<String> {
+                let kwargs = kwargs!(py, model_dir = model_dir, scan_dir = scan_dir);
+                py.import("cnfmp.core.api")?.call_method("predict_scan", (), Some(&kwargs))?.extract()
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })?;
+        let mut prediction: Prediction = serde_json::from_str(&json)
+            .map_err(|err| BridgeError::Protocol(format!("cnfmp.core.api.predict_scan: {err}")))?;
+        prediction.json = json;
+        Ok(prediction)
     }
 
     /// Draws the benchmark chart (`cnfmp.core.report.table_chart`): MED and success per task

@@ -200,7 +200,7 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
     let mut server = ServerProcess::spawn(&exe, &args.models, &[])?;
     let bridge = Bridge::start_default()?;
     let simulator = Simulator::new(bridge)?;
-    let scene = simulator.render(&args.task, args.seed)?;
+    let scene = simulator.render(&args.task, args.seed, false)?;
     let prompt = args.prompt.clone().unwrap_or_else(|| scene.info.prompt.clone());
     eprintln!("rendered held-out {} scene {} ({}); waiting for the server ...", args.task, args.seed, scene.info.objects.join(", "));
     let base = server.base_url(SERVER_START_TIMEOUT)?;

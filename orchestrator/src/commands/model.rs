@@ -200,12 +200,18 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
     let started = Instant::now();
     let bridge = Bridge::start_default()?;
     args.helpers.start(bridge, "cnfmp eval")?;
-    load_model(bridge, &args.model)?;
+    let takes_scans = load_model(bridge, &args.model)?.takes_scans();
+    if takes_scans && args.from_prompt {
+        return Err(Failure::BadInput(format!(
+            "the model at {} predicts from scans; --from-prompt segments one image and is not supported for it",
+            args.model.display()
+        )));
+    }
     let simulator = Simulator::new(bridge)?;
     let roles = if args.from_prompt { Some(prompt_roles(bridge, &args.model)?) } else { None };
     let mut episodes: Vec<Episode> = Vec::new();
     for (index, seed) in (args.seed_start..=last).enumerate() {
-        let episode = run_episode(bridge, &simulator, &args, roles.as_deref(), seed)?;
+        let episode = run_episode(bridge, &simulator, &args, roles.as_deref(), takes_scans, seed)?;
         let successes = episodes.iter().filter(|e| e.success).count() + usize::from(episode.success);
         let outcome = match (episode.success, episode.med_cm.is_finite()) {
             (true, _) => format!("success MED {:.2} cm, {:.0} ms", episode.med_cm, episode.latency_ms),
@@ -238,11 +244,18 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
 }
 
 /// One episode of `cnfmp eval`: render, find the objects (the simulator's masks, or the
-/// segmenter from the prompt), predict, execute, compare with the expert. A scene the
-/// segmenter cannot ground or the model cannot take is a failed episode, not a failed
-/// evaluation.
-fn run_episode(bridge: &Bridge, simulator: &Simulator, args: &EvalArgs, roles: Option<&[String]>, seed: u64) -> Result<Episode, Failure> {
-    let scene = simulator.render(&args.task, seed)?;
+/// segmenter from the prompt), predict (from the scene's scan for a model that takes
+/// scans), execute, compare with the expert. A scene the segmenter cannot ground or the
+/// model cannot take is a failed episode, not a failed evaluation.
+fn run_episode(
+    bridge: &Bridge,
+    simulator: &Simulator,
+    args: &EvalArgs,
+    roles: Option<&[String]>,
+    takes_scans: bool,
+    seed: u64,
+) -> Result<Episode, Failure> {
+    let scene = simulator.render(&args.task, seed, takes_scans)?;
     let call = Instant::now();
     let elapsed_ms = || call.elapsed().as_secs_f64() * 1e3;
     let (masks, objects, segmentation) = if let Some(roles) = roles {
@@ -254,7 +267,11 @@ fn run_episode(bridge: &Bridge, simulator: &Simulator, args: &EvalArgs, roles: O
     } else {
         (scene.masks, scene.info.objects, None)
     };
-    let prediction = match bridge.core_predict(&args.model, scene.image, masks, objects) {
+    let predicted = match &scene.scan {
+        Some(scan) => bridge.core_predict_scan(&args.model, scan),
+        None => bridge.core_predict(&args.model, scene.image, masks, objects),
+    };
+    let prediction = match predicted {
         Ok(prediction) => prediction,
         Err(BridgeError::InvalidInput(message)) => return Ok(Episode::unpredicted(seed, format!("not predicted: {message}"), elapsed_ms())),
         Err(other) => return Err(other.into()),

@@ -27,11 +27,17 @@ pub struct PredictArgs {
     #[arg(long)]
     model: PathBuf,
     /// Scene image (PNG or JPEG).
-    #[arg(long, required_unless_present = "scenes")]
+    #[arg(long, required_unless_present_any = ["scenes", "scan"])]
     image: Option<PathBuf>,
+    /// A scan instead of an image, for a model that takes scans (cnfmp-3d): a directory with
+    /// cameras.json (intrinsics and world-from-camera poses, OpenCV axes) and per view a depth
+    /// map (16-bit PNG in millimetres or .npy in metres) and a label map (8-bit, 0 background,
+    /// k the k-th object), as `cnfmp sim render --scan` writes it.
+    #[arg(long, conflicts_with_all = ["image", "masks", "objects", "prompt", "scenes"])]
+    scan: Option<PathBuf>,
     /// Coarse masks: an 8-bit label map of the image's size (0 background, k the k-th object).
     /// Without masks, --prompt is segmented instead.
-    #[arg(long, requires = "objects", conflicts_with = "prompt", required_unless_present_any = ["prompt", "scenes"])]
+    #[arg(long, requires = "objects", conflicts_with = "prompt", required_unless_present_any = ["prompt", "scenes", "scan"])]
     masks: Option<PathBuf>,
     /// Object names in label order: a JSON list, or an object with an "objects" list (the
     /// objects.json `cnfmp sim render` and `cnfmp segment` write).
@@ -124,6 +130,9 @@ fn inference_ms(prediction: &Prediction) -> f64 {
 }
 
 pub fn predict(args: PredictArgs) -> Result<(), Failure> {
+    if let Some(scan) = &args.scan {
+        return predict_scan(&args.model, scan, &args.out);
+    }
     let (image, objects) = match (args.image, args.masks, args.objects, args.prompt, args.scenes) {
         (None, None, None, None, Some(scenes)) => return predict_scenes(&args.model, &scenes, &args.segmenter, &args.out),
         (Some(image), Some(masks), Some(objects), None, None) => {
@@ -147,6 +156,35 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
         done.trajectory.duration(),
         describe_objects(&done.prediction.objects),
         inference_ms(&done.prediction)
+    );
+    Ok(())
+}
+
+/// `cnfmp predict --scan`: one scan with a model that takes scans.
+fn predict_scan(model: &Path, scan: &Path, out: &Path) -> Result<(), Failure> {
+    model_task(model)?;
+    if !scan.join("cameras.json").is_file() {
+        return Err(Failure::BadInput(format!("{} is not a scan: cameras.json is missing", scan.display())));
+    }
+    let bridge = Bridge::start_default()?;
+    if !load_model(bridge, model)?.takes_scans() {
+        return Err(Failure::BadInput(format!(
+            "the model at {} predicts from an image and masks (--image, --masks), not from a scan",
+            model.display()
+        )));
+    }
+    let prediction = bridge.core_predict_scan(model, scan)?;
+    let trajectory = trajectory_of(&prediction)?;
+    write_atomically(out, trajectory.to_json_string().as_bytes())?;
+    let objects: Vec<String> = prediction.objects.iter().map(|o| o.name.clone()).collect();
+    eprintln!(
+        "{}: {} frames at {} Hz, {:.2} s; objects: {}; inference {:.0} ms",
+        out.display(),
+        trajectory.frames.len(),
+        trajectory.fps,
+        trajectory.duration(),
+        objects.join(", "),
+        inference_ms(&prediction)
     );
     Ok(())
 }

@@ -18,7 +18,7 @@ from cnfmp.core.data import task_object_labels
 from cnfmp.errors import InputError
 from cnfmp.images import decode_image, decode_labels, encode_png
 
-__all__ = ["describe", "predict", "predict_batch", "start_helpers", "synthetic_scene", "train", "warm_up"]
+__all__ = ["describe", "predict", "predict_batch", "predict_scan", "start_helpers", "synthetic_scene", "train", "warm_up"]
 
 _LOADED: dict[str, tuple[tuple, object]] = {}
 
@@ -114,6 +114,38 @@ def predict_batch(model_dir: str, scenes: list[tuple[bytes, bytes, list[str]]], 
     return answers
 
 
+def predict_scan(model_dir: str, scan_dir: str, seed: int = 0) -> str:
+    """Predicts the trajectory for a scan (a directory of :mod:`cnfmp.scan`: ``cameras.json``
+    with the views' depth and label maps) with a cnfmp-3d model.
+
+    Returns the trajectory JSON of :func:`predict`; per object slot its simplex weights,
+    the fit's loss, its centre (world, m) and turn about the vertical (deg). InputError for
+    a bad scan or a model that does not take scans.
+    """
+    from cnfmp import scan as scans
+    from cnfmp.core.configuration_cnfmp3d import Cnfmp3dConfig
+
+    started = time.perf_counter()
+    model = predictor(model_dir)
+    loaded = time.perf_counter()
+    c = model.config
+    if not isinstance(c, Cnfmp3dConfig):
+        raise InputError(f"the model in {model_dir} ({c.model_type}) predicts from an image and masks, not from a scan")
+    scan = scans.read_scan(os.fspath(scan_dir))
+    read = time.perf_counter()
+    result = model.predict_scan(scan, seed)
+    fit = result["fit"]
+    box_centre, half = np.asarray(c.box_centre), c.box_half
+    slots = [{"slot": k + 1, "name": scan.objects[k] if k < len(scan.objects) else c.object_names[k], "present": True,
+              "weights": fit.weights[k].double().numpy().round(5).tolist(), "fit_loss": round(fit.losses[k], 6),
+              "centre_m": (box_centre + half * fit.centres[k].double().numpy()).round(4).tolist(),
+              "turn_deg": round(float(np.degrees(fit.turns[k])), 2)} for k in range(c.num_objects)]
+    timings = {"load_model": 1000 * (loaded - started), "decode_inputs": 1000 * (read - loaded),
+               "infer_latents": 1000 * result["seconds"]["infer"], "decode_trajectory": 1000 * result["seconds"]["decode"],
+               "total": 1000 * (time.perf_counter() - started)}
+    return _trajectory_document(model_dir, c, result["trajectory"], slots, None, timings)
+
+
 def _decoded_scene(config, image_png: bytes, masks_png: bytes, objects: list[str]) -> tuple:
     """A scene's image (H, W, 3) uint8, label map (H, W) uint8 and object names as `config`'s
     model reads them (distractors beyond its task objects become background); InputError for
@@ -135,9 +167,6 @@ def _decoded_scene(config, image_png: bytes, masks_png: bytes, objects: list[str
 def _document(model_dir: str, c, result: dict, objects: list[str], timings_ms: dict) -> str:
     """The JSON answer of :func:`predict` for one scene's prediction `result`."""
     traj = result["trajectory"]
-    # Rounded and converted as whole arrays: per frame, numpy calls cost ~3 ms a scene.
-    columns = [np.asarray(traj[key], dtype=np.float64).round(6).tolist() for key in ("t", "position", "orientation", "gripper")]
-    frames = [{"t": t, "position": p, "orientation": q, "gripper": g} for t, p, q, g in zip(*columns)]
     slots = []
     for slot in range(c.num_objects if isinstance(c, CnfmpConfig) else 0):
         present = bool(result["present"][slot])
@@ -148,11 +177,20 @@ def _document(model_dir: str, c, result: dict, objects: list[str], timings_ms: d
             "reconstruction_mse": result["object_mse"][slot], "psnr_db": result["object_psnr_db"][slot],
             "mask_iou": result["mask_iou"][slot],
         })
+    return _trajectory_document(model_dir, c, traj, slots, result.get("scene_psnr_db"), timings_ms)
+
+
+def _trajectory_document(model_dir: str, c, traj: dict, slots: list[dict], scene_psnr_db, timings_ms: dict) -> str:
+    """The JSON answer of a prediction: trajectory `traj` (decode_trajectory's dict), the
+    per-slot diagnostics, the scene's PSNR (None without one) and the timings."""
+    # Rounded and converted as whole arrays: per frame, numpy calls cost ~3 ms a scene.
+    columns = [np.asarray(traj[key], dtype=np.float64).round(6).tolist() for key in ("t", "position", "orientation", "gripper")]
+    frames = [{"t": t, "position": p, "orientation": q, "gripper": g} for t, p, q, g in zip(*columns)]
     recorded = _recorded_form(c, traj)
     return json.dumps({
         "fps": c.output_fps, "frames": frames, **({"recorded": recorded} if recorded else {}),
         "model": {"dir": os.path.abspath(model_dir), "task": c.task, "type": c.model_type},
-        "objects": slots, "scene_psnr_db": result.get("scene_psnr_db"),
+        "objects": slots, "scene_psnr_db": scene_psnr_db,
         # load_model is near zero once the model is resident (it then only checks file times).
         "timings_ms": timings_ms,
     })
@@ -177,11 +215,17 @@ def describe(model_dir: str) -> str:
     """Loads `model_dir` (it stays resident, so the first request does not pay for it) and
     describes it as JSON: ``{"task", "type", "objects": [slot names], "task_objects",
     "takes_distractors" (objects beyond the task objects are background), "parameters", "roles": [what fills each slot from a prompt, or null when prompts cannot
-    be mapped onto this task], "output_fps", "duration_s"}``."""
+    be mapped onto this task], "output_fps", "duration_s", "input": "image" or "scan"}``."""
+    from cnfmp.core.configuration_cnfmp3d import Cnfmp3dConfig
     from cnfmp.segmenter import phrases
 
     model = predictor(model_dir)
     c = model.config
+    if isinstance(c, Cnfmp3dConfig):
+        return json.dumps({"task": c.task, "type": c.model_type, "objects": list(c.object_names),
+                           "task_objects": c.num_objects, "takes_distractors": False,
+                           "parameters": model.model.parameter_count(), "roles": None, "output_fps": c.output_fps,
+                           "duration_s": c.duration_s, "input": "scan"})
     object_centric = isinstance(c, CnfmpConfig)
     # Prompts fill object slots; a model without objects can only be driven by masks.
     # The roles recorded with the training data describe the model's own slots, so they win
@@ -192,7 +236,7 @@ def describe(model_dir: str) -> str:
         "task_objects": (c.task_objects or c.num_objects) if object_centric else 0,
         "takes_distractors": bool(object_centric and c.task_objects),
         "parameters": model.model.parameter_count(),
-        "roles": roles, "output_fps": c.output_fps, "duration_s": c.duration_s,
+        "roles": roles, "output_fps": c.output_fps, "duration_s": c.duration_s, "input": "image",
     })
 
 

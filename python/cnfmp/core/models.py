@@ -9,6 +9,7 @@ is trained by ``cnfmp train --model-type T`` and evaluated by the same ``cnfmp e
 - ``cnfmp-nogate``: the same without temporal gating (the paper's ablation).
 - ``cnn-cnmp``: a CNN image encoder tiled into a conditional neural movement primitive.
 - ``nfmp``: the scene-level neural-field movement primitive (one latent per scene, no objects).
+- ``cnfmp-3d``: the compositional primitive on occupancy fields, for scenes given as scans.
 
 Loading never executes code from the directory: the config picks a class from this table
 and the weights are plain tensors.
@@ -53,7 +54,10 @@ class ModelType:
 
 def model_types() -> dict[str, ModelType]:
     """Every model type by name (imported on first use: torch is heavy)."""
-    from cnfmp.core import modeling_cnn_cnmp, modeling_nfmp, training_cnfmp
+    from cnfmp.core import modeling_cnn_cnmp, modeling_nfmp, training_cnfmp, training_cnfmp3d
+    from cnfmp.core.configuration_cnfmp3d import Cnfmp3dConfig
+    from cnfmp.core.inference_cnfmp3d import Predictor3d
+    from cnfmp.core.modeling_cnfmp3d import Cnfmp3dModel
     from cnfmp.core.configuration_cnfmp import CnfmpConfig, CnfmpNoGateConfig
     from cnfmp.core.configuration_cnn_cnmp import CnnCnmpConfig
     from cnfmp.core.configuration_nfmp import NfmpConfig
@@ -71,6 +75,9 @@ def model_types() -> dict[str, ModelType]:
         ModelType("nfmp", "Baseline: scene-level neural-field movement primitive (one latent per scene, "
                   "one global deformation, no objects)", NfmpConfig, modeling_nfmp.train_model,
                   modeling_nfmp.NfmpModel.from_state, modeling_nfmp.Predictor),
+        ModelType("cnfmp-3d", "Compositional neural-field movement primitive on occupancy fields, for scenes "
+                  "given as scans (paper §III-B)", Cnfmp3dConfig, training_cnfmp3d.train_model,
+                  Cnfmp3dModel.from_state, Predictor3d),
     ]
     return {t.name: t for t in types}
 

@@ -103,7 +103,10 @@ def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, 
     seed_text = f"{min(seeds)}..{max(seeds)}" if seeds else "not recorded"
     losses = ", ".join(f"{name.replace('_', ' ')} {value:.5f}" for name, value in summary["final_losses"].items())
     objects = (f"| objects (slots, label order) | {', '.join(config.object_names)} |\n"
-               if isinstance(config, CnfmpConfig) else "")
+               if getattr(config, "object_names", None) else "")
+    if demos.scans:
+        views = demos.scans[0].views
+        objects += f"| scans | {len(views)} views ({', '.join(v.name for v in views)}) per demonstration |\n"
     if task_objects:
         objects += f"| task objects | {task_objects} |\n"
     extra = (f" (plus {len(demos) * config.num_objects * config.num_endpoints} demonstration simplex weights)"
