@@ -139,7 +139,7 @@ def predict_scan(model_dir: str, scan_dir: str, seed: int = 0) -> str:
     slots = [{"slot": k + 1, "name": scan.objects[k] if k < len(scan.objects) else c.object_names[k], "present": True,
               "weights": fit.weights[k].double().numpy().round(5).tolist(), "fit_loss": round(fit.losses[k], 6),
               "centre_m": (box_centre + half * fit.centres[k].double().numpy()).round(4).tolist(),
-              "turn_deg": round(float(np.degrees(fit.turns[k])), 2)} for k in range(c.num_objects)]
+              "turn_deg": round(float(np.degrees(float(fit.turns[k]))), 2)} for k in range(c.num_objects)]
     timings = {"load_model": 1000 * (loaded - started), "decode_inputs": 1000 * (read - loaded),
                "infer_latents": 1000 * result["seconds"]["infer"], "decode_trajectory": 1000 * result["seconds"]["decode"],
                "total": 1000 * (time.perf_counter() - started)}
@@ -259,7 +259,7 @@ def start_helpers(count: int | None = None) -> str:
     Call it before the warm-ups, so that they load the models into the helpers too."""
     from cnfmp import helper_processes
 
-    return json.dumps(helper_processes.start(count, preload=("cnfmp.core.inference",)))
+    return json.dumps(helper_processes.start(count, preload=("cnfmp.core.inference", "cnfmp.core.inference_cnfmp3d")))
 
 
 def warm_up(model_dir: str) -> str:

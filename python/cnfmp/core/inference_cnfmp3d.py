@@ -6,11 +6,17 @@ random points) are scored on samples near the object's scan points, carved again
 scan, by the object's expert against the background (occupancy BCE) plus the mask logits
 against the coarse labels; the best few are refined by Adam on their simplex logits.
 The templates depend on neither latent nor scene, so they are baked on a grid once at load
-time; the background is evaluated once per scan at the fit samples.
+time; the background is evaluated at each object's fit samples. With helper processes
+running (:mod:`cnfmp.helper_processes`), the objects are fitted side by side, each process
+taking the next object when it is free.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
+import os
+import threading
 import time
 from dataclasses import dataclass
 
@@ -18,6 +24,8 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
+from cnfmp import helper_processes
+from cnfmp.scan import Scan
 from cnfmp.core import occupancy
 from cnfmp.core.adam import Adam
 from cnfmp.core.modeling_cnfmp3d import BakedTemplate, Cnfmp3dModel
@@ -46,6 +54,39 @@ class FittedScan:
     points: occupancy.ScanPoints
 
 
+@dataclass
+class HelperFit3d:
+    """A message to a helper process (:func:`fit_in_helper`): fit object `job` (the
+    arguments of :meth:`Predictor3d._object_job`) with the predictor called `key`, first
+    building it from `model` (config, {state-dict name: numpy array}) when the helper has
+    not got it."""
+
+    key: str
+    model: tuple | None
+    job: tuple
+
+
+HELPER_HANDLER = "cnfmp.core.inference_cnfmp3d:fit_in_helper"
+_HELPER_PREDICTORS: dict[str, "Predictor3d"] = {}
+_KEYS = itertools.count()
+
+
+def fit_in_helper(message: HelperFit3d) -> tuple:
+    """Runs in a helper process: one object's fit, as :meth:`Predictor3d._object_job`
+    returns it with the weights as a numpy array."""
+    if message.model is not None:
+        config, state = message.model
+        tensors = {name: torch.from_numpy(array) for name, array in state.items()}
+        model = Cnfmp3dModel.from_state(config, tensors)
+        model.load_state_dict(tensors)
+        _HELPER_PREDICTORS[message.key] = Predictor3d(model)
+    predictor = _HELPER_PREDICTORS.get(message.key)
+    if predictor is None:
+        raise helper_processes.HelperError(f"helper process {os.getpid()} holds no predictor {message.key}")
+    weights, loss = predictor._object_job(*message.job)
+    return weights.numpy(), loss
+
+
 class Predictor3d:
     """A trained cnfmp-3d model ready to predict: parameters frozen, templates baked."""
 
@@ -60,6 +101,9 @@ class Predictor3d:
                       for field, b in zip(model.objects, self.config.template_boxes)] if self.config.template_boxes else None
         with torch.no_grad():
             self.demo_weights = torch.softmax(model.demo_logits, dim=-1)  # (B_train, N, K)
+        self._helper_key = f"{os.getpid()}-3d-{next(_KEYS)}"
+        self._sent_to: set[int] = set()  # pids of the helpers holding a copy
+        self._helper_lock = threading.Lock()
 
     def _template(self, slot: int):
         return None if self.baked is None else self.baked[slot]
@@ -88,28 +132,60 @@ class Predictor3d:
         """Each object's latent for `scan` (a :class:`cnfmp.scan.Scan`). InputError when an
         object slot has no scan points inside the scene box."""
         c, model = self.config, self.model
-        rng = np.random.default_rng(seed)
         points = occupancy.scan_points(scan, self.box, c.num_objects, tuple(scan.objects) or tuple(c.object_names))
         anchors = torch.from_numpy(np.stack([self.box.to_box(points.of_object(k)).mean(axis=0)
                                              for k in range(c.num_objects)]).astype(np.float32))
-        weights, losses = [], []
-        for slot in range(c.num_objects):
-            world = occupancy.near_surface(points.of_object(slot), c.fit_samples, c.surface_jitter_m, rng)
-            labelled = occupancy.label_samples(world, scan, points, self.box, c)
-            coords = torch.from_numpy(labelled.points)
-            with torch.no_grad():
-                background = model.background_terms(coords[None])[0]
-            samples = {"points": coords, "occupied": torch.from_numpy(labelled.occupied),
-                       "known": torch.from_numpy(labelled.known).float(), "background": background,
-                       "mine": torch.from_numpy((labelled.coarse == slot).astype(np.float32))}
-            best, loss = self._fit_object(slot, samples, anchors[slot], rng)
-            weights.append(best)
-            losses.append(loss)
+        # Numpy, not tensors, in the jobs, and only what the fit reads (no colour, the points
+        # a sample can reach): they may travel to a helper process by pickle.
+        depth_only = Scan(tuple(dataclasses.replace(view, rgb=None) for view in scan.views), scan.objects)
+        reach = 3 * max(c.surface_jitter_m) + c.coarse_label_radius_m
+        jobs = [(slot, depth_only, points.around_object(slot, reach), anchors[slot].numpy(), seed)
+                for slot in range(c.num_objects)]
+        helpers = helper_processes.helpers() if len(jobs) > 1 else []
+        if helpers:
+            fits = self._fit_on_helpers(jobs, helpers)
+        else:
+            fits = [self._object_job(*job) for job in jobs]
+        weights, losses = [w for w, _ in fits], [loss for _, loss in fits]
         weights = torch.stack(weights)
         with torch.no_grad():
             latents = model.latents(weights[None])[0]
             centres, turns = model.poses(latents[None], anchors[None])
         return FittedScan(weights, latents, centres[0], turns[0], anchors, losses, points)
+
+    def _object_job(self, slot: int, scan, points: occupancy.ScanPoints, anchor: np.ndarray,
+                    seed: int) -> tuple[torch.Tensor, float]:
+        """Object `slot`'s fit on `scan`: its samples near its scan points, carved and
+        coarse-labelled, then the search and refinement; `anchor` (3,) its centroid (box
+        coordinates). Returns (weights (K,), loss)."""
+        c = self.config
+        anchor = torch.from_numpy(anchor)
+        rng = np.random.default_rng([seed, slot])
+        world = occupancy.near_surface(points.of_object(slot), c.fit_samples, c.surface_jitter_m, rng)
+        labelled = occupancy.label_samples(world, scan, points, self.box, c)
+        coords = torch.from_numpy(labelled.points)
+        with torch.no_grad():
+            background = self.model.background_terms(coords[None])[0]
+        samples = {"points": coords, "occupied": torch.from_numpy(labelled.occupied),
+                   "known": torch.from_numpy(labelled.known).float(), "background": background,
+                   "mine": torch.from_numpy((labelled.coarse == slot).astype(np.float32))}
+        return self._fit_object(slot, samples, anchor, rng)
+
+    def _fit_on_helpers(self, jobs: list[tuple], helpers: list) -> list[tuple]:
+        """The object jobs shared between this thread and the helper processes
+        (:func:`cnfmp.helper_processes.share`)."""
+
+        def there(helper, j: int) -> tuple:
+            with self._helper_lock:  # the first message to a helper carries the model
+                model = None
+                if helper.process.pid not in self._sent_to:
+                    model = (self.model.config, {name: value.numpy() for name, value in self.model.state_dict().items()})
+                future = helper.submit(HELPER_HANDLER, HelperFit3d(self._helper_key, model, jobs[j]))
+                self._sent_to.add(helper.process.pid)
+            weights, loss = future.result()
+            return torch.from_numpy(weights), loss
+
+        return helper_processes.share(len(jobs), lambda j: self._object_job(*jobs[j]), there, helpers)
 
     def _fit_object(self, slot: int, samples: dict, anchor: torch.Tensor, rng: np.random.Generator):
         c = self.config

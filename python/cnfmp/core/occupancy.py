@@ -56,6 +56,14 @@ class ScanPoints:
         """The points of object slot `slot` (label slot + 1): (M_k, 3)."""
         return self.points[self.labels == slot + 1]
 
+    def around_object(self, slot: int, reach_m: float) -> "ScanPoints":
+        """The points within `reach_m` of object `slot`'s bounding box (every point a sample
+        near the object can take its coarse label from)."""
+        own = self.of_object(slot)
+        lower, upper = own.min(axis=0) - reach_m, own.max(axis=0) + reach_m
+        near = np.all((self.points >= lower) & (self.points <= upper), axis=1)
+        return ScanPoints(self.points[near], self.labels[near])
+
 
 def scan_points(scan, box: SceneBox | None = None, num_objects: int | None = None,
                 objects: tuple[str, ...] = ()) -> ScanPoints:
@@ -107,10 +115,16 @@ def coarse_labels(samples: np.ndarray, points: ScanPoints, radius_m: float, num_
     the objects, N (the background's slot) for background points and empty space. (S,) int64."""
     from scipy.spatial import cKDTree
 
-    distance, nearest = cKDTree(points.points).query(samples, k=1, distance_upper_bound=radius_m)
-    found = np.isfinite(distance)
-    label = np.zeros(len(samples), dtype=np.int64)
-    label[found] = points.labels[nearest[found]]
+    # Only scan points within the radius of the samples' bounding box can be found: the tree
+    # over them alone is much cheaper to build than over the whole scan.
+    near = np.all((points.points >= samples.min(axis=0) - radius_m) & (points.points <= samples.max(axis=0) + radius_m),
+                  axis=1)
+    label = np.full(len(samples), 0, dtype=np.int64)
+    if near.any():
+        candidates, candidate_labels = points.points[near], points.labels[near]
+        distance, nearest = cKDTree(candidates).query(samples, k=1, distance_upper_bound=radius_m)
+        found = np.isfinite(distance)
+        label[found] = candidate_labels[nearest[found]]
     return np.where(label > 0, label - 1, num_objects)
 
 
