@@ -1,4 +1,5 @@
-"""Writing an artifact directory (a trained model) so that it appears complete or not at all.
+"""Writing an artifact (a trained model's directory, a picture) so that it appears complete
+or not at all.
 
 The files are written into a private sibling directory which is renamed into place once
 everything is there: an interrupted run never leaves a directory that looks like a model.
@@ -36,4 +37,20 @@ def publish_directory(out_dir: str, fill: Callable[[str], None]) -> None:
         raise
 
 
-__all__ = ["publish_directory"]
+def write_bytes_atomically(path: str, data: bytes) -> None:
+    """Writes `data` to `path` through a temporary sibling renamed over it (mode 0644)."""
+    parent = os.path.dirname(os.path.abspath(path))
+    os.makedirs(parent, exist_ok=True)
+    handle, staging = tempfile.mkstemp(prefix=".cnfmp-", dir=parent)
+    try:
+        with os.fdopen(handle, "wb") as f:
+            f.write(data)
+        os.chmod(staging, 0o644)
+        os.replace(staging, path)
+    except BaseException:
+        if os.path.exists(staging):
+            os.unlink(staging)
+        raise
+
+
+__all__ = ["publish_directory", "write_bytes_atomically"]

@@ -10,6 +10,10 @@ import numpy as np
 
 from cnfmp.errors import InputError
 
+#: Colours of label maps in pictures: background black, then one colour per object slot.
+LABEL_PALETTE = np.array([[0, 0, 0], [230, 25, 75], [60, 180, 75], [0, 130, 200], [255, 225, 25], [145, 30, 180]],
+                         np.uint8)
+
 #: Largest image side accepted (px); the networks work at 64-128 px, anything larger is waste.
 MAX_IMAGE_SIDE = 4096
 

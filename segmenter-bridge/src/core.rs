@@ -260,12 +260,13 @@ impl Bridge {
 
     /// Predicts the trajectory for the scan in `scan_dir` (`cameras.json` with depth and label
     /// maps, `cnfmp.scan`) with the (resident) cnfmp-3d model in `model_dir`
-    /// (`cnfmp.core.api.predict_scan`). A bad scan is `InvalidInput`.
-    pub fn core_predict_scan(&self, model_dir: &Path, scan_dir: &Path) -> Result<Prediction, BridgeError> {
-        let (model_dir, scan_dir) = (model_dir.to_path_buf(), scan_dir.to_path_buf());
+    /// (`cnfmp.core.api.predict_scan`); with `figure`, also writes the picture of the scan's
+    /// points, the reconstructed surface and the path there (PNG). A bad scan is `InvalidInput`.
+    pub fn core_predict_scan(&self, model_dir: &Path, scan_dir: &Path, figure: Option<&Path>) -> Result<Prediction, BridgeError> {
+        let (model_dir, scan_dir, figure) = (model_dir.to_path_buf(), scan_dir.to_path_buf(), figure.map(Path::to_path_buf));
         let json: String = self.call(move |py| {
             let run = || -> PyResult<String> {
-                let kwargs = kwargs!(py, model_dir = model_dir, scan_dir = scan_dir);
+                let kwargs = kwargs!(py, model_dir = model_dir, scan_dir = scan_dir, figure = figure);
                 py.import("cnfmp.core.api")?.call_method("predict_scan", (), Some(&kwargs))?.extract()
             };
             run().map_err(|err| BridgeError::python(py, &err))

@@ -225,9 +225,17 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
     if let Some(path) = &args.json {
         write_atomically(path, serde_json::to_string_pretty(&summary).expect("summary serialises").as_bytes())?;
     }
+    // A model without an image field (cnfmp-3d, the CNN baseline) has no PSNR or mask IoU.
+    let mut fits = String::new();
+    if summary.scene_psnr_db_mean.is_finite() {
+        fits += &format!(", scene PSNR {:.1} dB", summary.scene_psnr_db_mean);
+    }
+    if summary.mask_iou_mean.is_finite() {
+        fits += &format!(", mask IoU {:.2}", summary.mask_iou_mean);
+    }
     print_stdout(&format!(
         "{} on {} {scenes} {} scenes (seeds {}..={last}): success {:.2} (95% interval {:.2}-{:.2}), MED {:.2} cm, \
-         latency p50 {:.0} ms / p95 {:.0} ms, scene PSNR {:.1} dB, mask IoU {:.2}",
+         latency p50 {:.0} ms / p95 {:.0} ms{fits}",
         summary.model,
         summary.episodes,
         summary.task,
@@ -238,8 +246,6 @@ pub fn eval(args: EvalArgs) -> Result<(), Failure> {
         summary.med_cm,
         summary.latency_ms_p50,
         summary.latency_ms_p95,
-        summary.scene_psnr_db_mean,
-        summary.mask_iou_mean
     ))
 }
 
@@ -268,7 +274,7 @@ fn run_episode(
         (scene.masks, scene.info.objects, None)
     };
     let predicted = match &scene.scan {
-        Some(scan) => bridge.core_predict_scan(&args.model, scan),
+        Some(scan) => bridge.core_predict_scan(&args.model, scan, None),
         None => bridge.core_predict(&args.model, scene.image, masks, objects),
     };
     let prediction = match predicted {

@@ -35,6 +35,10 @@ pub struct PredictArgs {
     /// k the k-th object), as `cnfmp sim render --scan` writes it.
     #[arg(long, conflicts_with_all = ["image", "masks", "objects", "prompt", "scenes"])]
     scan: Option<PathBuf>,
+    /// With --scan: also write a picture (PNG) of the scan's points beside the reconstructed
+    /// surface (marching cubes of the model's occupancy, coloured by object), with the path.
+    #[arg(long, requires = "scan")]
+    figure: Option<PathBuf>,
     /// Coarse masks: an 8-bit label map of the image's size (0 background, k the k-th object).
     /// Without masks, --prompt is segmented instead.
     #[arg(long, requires = "objects", conflicts_with = "prompt", required_unless_present_any = ["prompt", "scenes", "scan"])]
@@ -131,7 +135,7 @@ fn inference_ms(prediction: &Prediction) -> f64 {
 
 pub fn predict(args: PredictArgs) -> Result<(), Failure> {
     if let Some(scan) = &args.scan {
-        return predict_scan(&args.model, scan, &args.out);
+        return predict_scan(&args.model, scan, args.figure.as_deref(), &args.out);
     }
     let (image, objects) = match (args.image, args.masks, args.objects, args.prompt, args.scenes) {
         (None, None, None, None, Some(scenes)) => return predict_scenes(&args.model, &scenes, &args.segmenter, &args.out),
@@ -161,7 +165,7 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
 }
 
 /// `cnfmp predict --scan`: one scan with a model that takes scans.
-fn predict_scan(model: &Path, scan: &Path, out: &Path) -> Result<(), Failure> {
+fn predict_scan(model: &Path, scan: &Path, figure: Option<&Path>, out: &Path) -> Result<(), Failure> {
     model_task(model)?;
     if !scan.join("cameras.json").is_file() {
         return Err(Failure::BadInput(format!("{} is not a scan: cameras.json is missing", scan.display())));
@@ -173,7 +177,7 @@ fn predict_scan(model: &Path, scan: &Path, out: &Path) -> Result<(), Failure> {
             model.display()
         )));
     }
-    let prediction = bridge.core_predict_scan(model, scan)?;
+    let prediction = bridge.core_predict_scan(model, scan, figure)?;
     let trajectory = trajectory_of(&prediction)?;
     write_atomically(out, trajectory.to_json_string().as_bytes())?;
     let objects: Vec<String> = prediction.objects.iter().map(|o| o.name.clone()).collect();
@@ -186,6 +190,9 @@ fn predict_scan(model: &Path, scan: &Path, out: &Path) -> Result<(), Failure> {
         objects.join(", "),
         inference_ms(&prediction)
     );
+    if let Some(figure) = figure {
+        eprintln!("figure: {}", figure.display());
+    }
     Ok(())
 }
 

@@ -114,13 +114,15 @@ def predict_batch(model_dir: str, scenes: list[tuple[bytes, bytes, list[str]]], 
     return answers
 
 
-def predict_scan(model_dir: str, scan_dir: str, seed: int = 0) -> str:
+def predict_scan(model_dir: str, scan_dir: str, seed: int = 0, figure: str | None = None) -> str:
     """Predicts the trajectory for a scan (a directory of :mod:`cnfmp.scan`: ``cameras.json``
     with the views' depth and label maps) with a cnfmp-3d model.
 
     Returns the trajectory JSON of :func:`predict`; per object slot its simplex weights,
-    the fit's loss, its centre (world, m) and turn about the vertical (deg). InputError for
-    a bad scan or a model that does not take scans.
+    the fit's loss, its centre (world, m) and turn about the vertical (deg). With `figure`,
+    also writes a picture of the scan's points, the reconstructed surface and the path there
+    (PNG, :func:`cnfmp.core.figures_3d.scan_figure`). InputError for a bad scan or a model
+    that does not take scans.
     """
     from cnfmp import scan as scans
     from cnfmp.core.configuration_cnfmp3d import Cnfmp3dConfig
@@ -143,6 +145,10 @@ def predict_scan(model_dir: str, scan_dir: str, seed: int = 0) -> str:
     timings = {"load_model": 1000 * (loaded - started), "decode_inputs": 1000 * (read - loaded),
                "infer_latents": 1000 * result["seconds"]["infer"], "decode_trajectory": 1000 * result["seconds"]["decode"],
                "total": 1000 * (time.perf_counter() - started)}
+    if figure:
+        from cnfmp.core.figures_3d import scan_figure
+
+        scan_figure(model.model, scan, fit, result["trajectory"], os.fspath(figure))
     return _trajectory_document(model_dir, c, result["trajectory"], slots, None, timings)
 
 

@@ -14,10 +14,8 @@ import os
 
 import numpy as np
 
+from cnfmp.images import LABEL_PALETTE as PALETTE
 from cnfmp.seeds import HELDOUT_SEEDS
-
-#: Label colours: background black, then one colour per object slot.
-PALETTE = np.array([[0, 0, 0], [230, 25, 75], [60, 180, 75], [0, 130, 200], [255, 225, 25], [145, 30, 180]], np.uint8)
 
 
 def scene_fit_picture(model_dir: str, seed: int) -> np.ndarray:
