@@ -135,8 +135,14 @@ def small_model(scan_dataset, tmp_path_factory):
 def test_a_trained_model_predicts_from_a_held_out_scan(small_model, held_out, tmp_path):
     scene, scan = held_out
     write_scan(scan, str(tmp_path / "scan"))
-    answer = json.loads(api.predict_scan(small_model, str(tmp_path / "scan")))
+    figure = tmp_path / "figure.png"
+    answer = json.loads(api.predict_scan(small_model, str(tmp_path / "scan"), figure=str(figure)))
     assert answer["model"]["type"] == "cnfmp-3d"
+    from PIL import Image
+
+    picture = np.asarray(Image.open(figure))
+    assert picture.shape[:2] == (480, 960)
+    assert (picture[:, 480:] < 250).any(axis=-1).mean() > 0.02  # a surface was drawn
     positions = np.array([f["position"] for f in answer["frames"]])
     assert len(positions) > 50 and np.isfinite(positions).all()
     carton = answer["objects"][0]
