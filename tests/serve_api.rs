@@ -128,7 +128,7 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
     let health: Value = serde_json::from_str(&text).unwrap();
     assert_eq!((health["status"].as_str(), health["ready"].as_bool()), (Some("ok"), Some(true)), "{health}");
     assert!(health["ready_after_s"].as_f64().is_some_and(|s| s > 0.0), "{health}");
-    assert_eq!(health["models"], 5, "{health}");
+    assert_eq!(health["models"], 6, "{health}");
     assert_eq!(health["segmenter"], "film");
     let (status, text) = get(&server.url("/v1/models"));
     assert_eq!(status, 200);
@@ -237,6 +237,108 @@ fn trajectories_over_http_succeed_bad_requests_get_4xx_bursts_get_503_and_sigter
     }
     assert!(server.terminate(), "the server did not exit 0 within 60 s of SIGTERM");
     assert_eq!(in_flight.join().unwrap().status, 200, "the request in flight was not finished");
+}
+
+/// A multipart body of files: (field name = file name, bytes) each, plus text fields.
+fn files_form(files: &[(&str, Vec<u8>)], fields: &[(&str, &str)]) -> (String, Vec<u8>) {
+    let boundary = "cnfmp-scan-boundary-51c2";
+    let mut body = Vec::new();
+    for (name, value) in fields {
+        body.extend_from_slice(format!("--{boundary}\r\nContent-Disposition: form-data; name=\"{name}\"\r\n\r\n{value}\r\n").as_bytes());
+    }
+    for (name, bytes) in files {
+        body.extend_from_slice(
+            format!("--{boundary}\r\nContent-Disposition: form-data; name=\"{name}\"; filename=\"{name}\"\r\n\r\n").as_bytes(),
+        );
+        body.extend_from_slice(bytes);
+        body.extend_from_slice(b"\r\n");
+    }
+    body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
+    (format!("multipart/form-data; boundary={boundary}"), body)
+}
+
+#[test]
+fn scans_over_http_succeed_and_bad_scans_get_4xx() {
+    const SCAN_TASK: &str = "drawer_place";
+    const SCAN_SEED: &str = "1000002";
+    let dir = tempfile::tempdir().unwrap();
+    let rendered = dir.path().join("scene");
+    let output = cnfmp(&["sim", "render", "--task", SCAN_TASK, "--seed", SCAN_SEED, "--scan", "--out", arg(&rendered)]);
+    assert!(output.status.success(), "{}", common::stderr(&output));
+    let scan = rendered.join("scan");
+    let mut files: Vec<(String, Vec<u8>)> = std::fs::read_dir(&scan)
+        .unwrap()
+        .map(|entry| entry.unwrap().path())
+        .filter(|path| path.file_name().unwrap() != "cameras.json")
+        .map(|path| (path.file_name().unwrap().to_string_lossy().into_owned(), std::fs::read(&path).unwrap()))
+        .collect();
+    files.sort();
+    let cameras = std::fs::read(scan.join("cameras.json")).unwrap();
+    let models = dir.path().join("models");
+    std::fs::create_dir(&models).unwrap();
+    for name in [SCAN_TASK, TASK] {
+        std::os::unix::fs::symlink(repo().join("models").join(name), models.join(name)).unwrap();
+    }
+    let server = Server::start_with(&models, &["--default-model", SCAN_TASK]);
+    let send = |cameras: &[u8], files: &[(String, Vec<u8>)], fields: &[(&str, &str)]| {
+        let mut all: Vec<(&str, Vec<u8>)> = vec![("cameras", cameras.to_vec())];
+        all.extend(files.iter().map(|(name, bytes)| (name.as_str(), bytes.clone())));
+        let (content_type, body) = files_form(&all, fields);
+        post(&server.url("/v1/scan-trajectories"), &content_type, &body)
+    };
+
+    let answer = send(&cameras, &files, &[]);
+    assert_eq!(answer.status, 200, "{}", answer.body);
+    assert_eq!(answer.body["model"]["name"], SCAN_TASK);
+    assert_eq!(answer.body["objects"][0]["phrase"], "carton box", "{}", answer.body);
+    let path = dir.path().join("scan-trajectory.json");
+    std::fs::write(&path, json!({"fps": answer.body["fps"], "frames": answer.body["frames"]}).to_string()).unwrap();
+    let executed = cnfmp(&["sim", "execute", "--task", SCAN_TASK, "--seed", SCAN_SEED, "--trajectory", arg(&path)]);
+    assert!(executed.status.success(), "{}", common::stderr(&executed));
+    let verdict: Value = serde_json::from_slice(&executed.stdout).unwrap();
+    assert_eq!(verdict["success"], true, "the scan's trajectory failed in the simulator: {verdict}");
+
+    // Bad scans: each a 4xx with its code, and the server goes on.
+    let mut without_pose: Value = serde_json::from_slice(&cameras).unwrap();
+    without_pose["views"][1].as_object_mut().unwrap().remove("world_from_camera");
+    let without_pose = without_pose.to_string().into_bytes();
+    let labels = files.iter().position(|(name, _)| name == "left_labels.png").unwrap();
+    let mut small_labels = files.clone();
+    small_labels[labels].1 = png(64, 64, png::BitDepth::Eight, &[0; 64 * 64]);
+    let mut nan_depth: Value = serde_json::from_slice(&cameras).unwrap();
+    nan_depth["views"][0]["depth"] = json!("front_depth.npy");
+    let nan_depth = nan_depth.to_string().into_bytes();
+    let mut npy = b"\x93NUMPY\x01\x00".to_vec();
+    let header = "{'descr': '<f4', 'fortran_order': False, 'shape': (128, 128), }";
+    let padded = format!("{header:<117}\n");
+    npy.extend_from_slice(&(padded.len() as u16).to_le_bytes());
+    npy.extend_from_slice(padded.as_bytes());
+    npy.extend((0..128 * 128).flat_map(|_| f32::NAN.to_le_bytes()));
+    let mut with_npy: Vec<(String, Vec<u8>)> = files.iter().filter(|(name, _)| name != "front_depth.png").cloned().collect();
+    with_npy.push(("front_depth.npy".into(), npy));
+    let cases: Vec<(&str, Vec<u8>, Vec<(String, Vec<u8>)>, u16, &str, &str)> = vec![
+        ("a view without its pose", without_pose, files.clone(), 400, "invalid_input", "world_from_camera"),
+        ("labels of another size than the depth", cameras.clone(), small_labels, 400, "invalid_input", "64x64"),
+        ("NaN depth", nan_depth, with_npy, 400, "invalid_input", "NaN"),
+        ("a named file not sent", cameras.clone(), files[1..].to_vec(), 400, "missing_file", &files[0].0),
+        ("not JSON", b"{views".to_vec(), files.clone(), 400, "invalid_scan", "not JSON"),
+    ];
+    for (what, cameras, files, status, code, mention) in &cases {
+        let answer = send(cameras, files, &[]);
+        assert_eq!(answer.status, *status, "{what}: {}", answer.body);
+        assert_eq!(answer.body["error"]["code"], *code, "{what}: {}", answer.body);
+        let message = answer.body["error"]["message"].as_str().unwrap_or_default();
+        assert!(message.contains(mention), "{what}: {message}");
+    }
+    let image_model = send(&cameras, &files, &[("model", TASK)]);
+    assert_eq!((image_model.status, image_model.body["error"]["code"].as_str()), (422, Some("needs_image")), "{}", image_model.body);
+    let image = std::fs::read(rendered.join("image.png")).unwrap();
+    let image_to_scan_model = post_form(&server, &image, &[("prompt", "put the carton box in the drawer")]);
+    assert_eq!(image_to_scan_model.status, 422, "{}", image_to_scan_model.body);
+    assert_eq!(image_to_scan_model.body["error"]["code"], "needs_scan");
+    let again = send(&cameras, &files, &[]);
+    assert_eq!(again.status, 200, "after the bad scans: {}", again.body);
+    assert_eq!(again.body["frames"], answer.body["frames"], "inference is seeded: the same scan, the same trajectory");
 }
 
 #[test]

@@ -68,6 +68,26 @@ pub struct TrajectoryForm {
     pub include_masks: Option<bool>,
 }
 
+/// `POST /v1/scan-trajectories` as `multipart/form-data`: a scan, as `cnfmp predict --scan`
+/// reads it from a directory: `cameras`, and every file cameras.json names as a further form
+/// file whose field name is that file name (e.g. `front_depth.png`: a 16-bit PNG in
+/// millimetres, or `.npy` in metres; `front_labels.png`: an 8-bit label map).
+#[derive(Debug, Clone, ToSchema)]
+#[allow(dead_code)] // documents the form for the OpenAPI description; the form is parsed field by field
+pub struct ScanTrajectoryForm {
+    /// The scan's cameras.json: `{"objects": [names in label order], "depth_unit": "mm",
+    /// "views": [{"name", "width", "height", "intrinsics": 3x3, "world_from_camera": 4x4
+    /// (OpenCV camera axes, metres), "depth", "labels", "rgb" (optional): file names}]}`.
+    #[schema(value_type = String, format = Binary)]
+    pub cameras: Vec<u8>,
+    /// Use the served model trained on this task.
+    #[schema(example = "drawer_place")]
+    pub task: Option<String>,
+    /// Use this served model by name (overrides `task`).
+    #[schema(example = "drawer_place")]
+    pub model: Option<String>,
+}
+
 /// One time step of the trajectory (design.md's trajectory JSON).
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct Frame {
@@ -195,7 +215,8 @@ pub struct ModelSummary {
     /// The prompt role filling each slot; null when prompts cannot drive this task yet.
     pub roles: Option<Vec<String>>,
     /// What a request may give to find the objects: "prompt" (when there are roles) and
-    /// "masks" (always: `masks` + `objects`, labels in the slot order of `objects` above).
+    /// "masks" (`masks` + `objects`, labels in the slot order of `objects` above), for a
+    /// model of images; "scan" (`POST /v1/scan-trajectories`) for a model of scans.
     pub inputs: Vec<String>,
     /// Network parameters.
     pub parameters: u64,

@@ -89,15 +89,28 @@ impl Catalog {
                 description.task,
                 description.parameters,
                 description.objects.join(", "),
-                if description.roles.is_some() { "" } else { "; no prompt roles: served from masks" }
+                if description.takes_scans() {
+                    "; served from scans (/v1/scan-trajectories)"
+                } else if description.roles.is_some() {
+                    ""
+                } else {
+                    "; no prompt roles: served from masks"
+                }
             );
+            let takes_scans = description.takes_scans();
             let summary = ModelSummary {
                 card: card_summary(&dir),
                 name,
                 task: description.task,
                 model_type: description.model_type,
                 objects: description.objects.into_iter().take(description.task_objects as usize).collect(),
-                inputs: if description.roles.is_some() { vec!["prompt".into(), "masks".into()] } else { vec!["masks".into()] },
+                inputs: if takes_scans {
+                    vec!["scan".into()]
+                } else if description.roles.is_some() {
+                    vec!["prompt".into(), "masks".into()]
+                } else {
+                    vec!["masks".into()]
+                },
                 roles: description.roles,
                 parameters: description.parameters,
                 output_fps: description.output_fps,

@@ -5,6 +5,7 @@
 //! fake, so its 4xx paths need no Python.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use segmenter_bridge::{Bridge, BridgeError, Prediction, SceneToPredict, SegmentRequest, Segmentation};
@@ -21,6 +22,9 @@ pub enum SceneObjects {
     Prompt(String),
     /// The request carried the coarse masks.
     Masks(CoarseMasks),
+    /// The request was a scan (for a model that takes scans): its files, written to a
+    /// directory that lives as long as the job.
+    Scan(Arc<tempfile::TempDir>),
 }
 
 /// The Python work of one trajectory request.
@@ -40,6 +44,8 @@ pub enum FoundObjects {
     Segmented(Segmentation),
     /// Sent with the request.
     Given(CoarseMasks),
+    /// In the scan's label maps.
+    Scanned,
 }
 
 /// The result of the Python part of one request.
@@ -122,6 +128,10 @@ struct Found {
 /// result per job, in order; a job's bad input fails that job alone.
 fn run_batch(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob>) -> Vec<PipelineResult> {
     let Some(model_dir) = jobs.first().map(|job| job.model_dir.clone()) else { return Vec::new() };
+    if jobs.iter().any(|job| matches!(job.objects, SceneObjects::Scan(_))) {
+        // A model takes scans or images, never both (the routes check): a batch of scans.
+        return jobs.into_iter().map(|job| predict_scan(bridge, &model_dir, job)).collect();
+    }
     let mut scenes = Vec::with_capacity(jobs.len());
     let found: Vec<Result<(FoundObjects, f64), ApiError>> = find_objects(bridge, segmenter, jobs)
         .into_iter()
@@ -148,6 +158,16 @@ fn run_batch(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob
         .collect()
 }
 
+/// One scan job: its files predicted by the model that takes scans.
+fn predict_scan(bridge: &Bridge, model_dir: &std::path::Path, job: PipelineJob) -> PipelineResult {
+    let SceneObjects::Scan(dir) = job.objects else {
+        return Err(ApiError::internal("an image job in a batch of scans"));
+    };
+    let started = Instant::now();
+    let prediction = bridge.core_predict_scan(model_dir, dir.path(), None)?;
+    Ok(PipelineOutput { found: FoundObjects::Scanned, prediction, segment_s: 0.0, infer_s: started.elapsed().as_secs_f64() })
+}
+
 /// Each job's objects: its masks when they came with the request, else the segmenter's for
 /// its prompt (every prompt of the batch in one call; `segment_s` is that call's time).
 fn find_objects(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob>) -> Vec<Result<Found, ApiError>> {
@@ -162,7 +182,7 @@ fn find_objects(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<Pipeline
                 roles: job.roles.clone(),
                 pictures: false,
             }),
-            SceneObjects::Masks(_) => None,
+            SceneObjects::Masks(_) | SceneObjects::Scan(_) => None,
         })
         .collect();
     let started = Instant::now();
@@ -177,6 +197,7 @@ fn find_objects(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<Pipeline
         .map(|job| {
             let (masks, objects, found, seconds) = match job.objects {
                 SceneObjects::Masks(masks) => (masks.png(), masks.objects.clone(), FoundObjects::Given(masks), 0.0),
+                SceneObjects::Scan(_) => return Err(ApiError::internal("a scan job in a batch of images")),
                 SceneObjects::Prompt(_) => {
                     let missing = || Err(call_error.clone().unwrap_or_else(|| BridgeError::Protocol("a segmentation is missing".into())));
                     let found = segmented.next().unwrap_or_else(missing)?;

@@ -58,6 +58,7 @@ pub fn router(state: Shared) -> Router {
     let body_limit = state.limits.max_body_bytes;
     Router::new()
         .route("/v1/trajectories", post(create_trajectory))
+        .route("/v1/scan-trajectories", post(create_scan_trajectory))
         .route("/v1/health", get(health))
         .route("/v1/models", get(list_models))
         .route("/metrics", get(metrics))
@@ -172,8 +173,35 @@ async fn answer_trajectory(state: &AppState, request: Request, started: Instant)
     let prompt = input.prompt.as_deref().map(|prompt| check_prompt(prompt, state.limits.max_prompt_chars)).transpose()?;
     let size = check_image(&input.image, state.limits.max_image_side)?;
     let served = state.catalog.select(input.model.as_deref(), input.task.as_deref())?;
+    if takes_scans(served) {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "needs_scan",
+            format!(
+                "the model {} predicts from a scan (calibrated depth and label views), not from an image; \
+                 POST the scan to /v1/scan-trajectories",
+                served.summary.name
+            ),
+        ));
+    }
     let objects = scene_objects(served, prompt.clone(), input.masks, input.objects, size)?;
     let job = PipelineJob { model_dir: served.dir.clone(), roles: served.summary.roles.clone(), image: input.image, objects };
+    run_job(state, served, job, prompt, input.include_masks, started).await
+}
+
+fn takes_scans(served: &ServedModel) -> bool {
+    served.summary.inputs.iter().any(|input| input == "scan")
+}
+
+/// Queues `job`, waits for its answer, records the stage timings and builds the response.
+async fn run_job(
+    state: &AppState,
+    served: &ServedModel,
+    job: PipelineJob,
+    prompt: Option<String>,
+    include_masks: bool,
+    started: Instant,
+) -> Result<TrajectoryResponse, ApiError> {
     let receiver = state.pipeline.submit(job).map_err(|refused| match refused {
         Refused::Full { capacity, retry_after_s } => ApiError::overloaded(retry_after_s, capacity),
         Refused::Stopped => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "shutting_down", "the server is shutting down"),
@@ -192,7 +220,160 @@ async fn answer_trajectory(state: &AppState, request: Request, started: Instant)
         total_ms: total * 1e3,
         batch_size: done.batch_size as u32,
     };
-    build_response(served, prompt, output, timings, input.include_masks)
+    build_response(served, prompt, output, timings, include_masks)
+}
+
+/// Predict a trajectory from a scan, with a model that takes scans (cnfmp-3d).
+///
+/// A scan is several calibrated depth views with their label maps: `cameras` (the scan's
+/// cameras.json) and every file it names, each as a form file whose field name is that file
+/// name, as `cnfmp predict --scan DIR` reads a directory (README, "3D scenes").
+#[utoipa::path(
+    post,
+    path = "/v1/scan-trajectories",
+    request_body(description = "The scan: cameras.json and the files it names.", content((ScanTrajectoryForm = "multipart/form-data"))),
+    responses(
+        (status = 200, description = "The trajectory, each object's fit, and stage timings.", body = TrajectoryResponse),
+        (status = 400, description = "Malformed form or scan: cameras.json unreadable or without views, a named file missing or not sent, a view without intrinsics or pose, depth of another size than its label map, NaN depth, no points of an object.", body = ErrorResponse),
+        (status = 404, description = "Unknown model or task.", body = ErrorResponse),
+        (status = 413, description = "The body is too large.", body = ErrorResponse),
+        (status = 415, description = "Not multipart/form-data.", body = ErrorResponse),
+        (status = 422, description = "The model predicts from images, not scans.", body = ErrorResponse),
+        (status = 500, description = "Internal failure: the message gives the request id.", body = ErrorResponse),
+        (status = 503, description = "Too many requests are waiting; retry after the Retry-After header's seconds.", body = ErrorResponse,
+            headers(("Retry-After" = u64, description = "Seconds to wait before retrying."))),
+        (status = 504, description = "The request took longer than the server's timeout.", body = ErrorResponse),
+    )
+)]
+async fn create_scan_trajectory(State(state): State<Shared>, request: Request) -> Result<Json<TrajectoryResponse>, ApiError> {
+    let started = Instant::now();
+    let timeout = state.limits.request_timeout;
+    match tokio::time::timeout(timeout, answer_scan_trajectory(&state, request, started)).await {
+        Ok(answer) => answer.map(Json),
+        Err(_) => Err(ApiError::new(
+            StatusCode::GATEWAY_TIMEOUT,
+            "timeout",
+            format!("the request took longer than the server's limit of {:.0} s", timeout.as_secs_f64()),
+        )),
+    }
+}
+
+async fn answer_scan_trajectory(state: &AppState, request: Request, started: Instant) -> Result<TrajectoryResponse, ApiError> {
+    if content_type(request.headers()) != "multipart/form-data" {
+        return Err(ApiError::new(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "unsupported_media_type",
+            "send the scan as multipart/form-data: a `cameras` file (cameras.json) and the files it names",
+        ));
+    }
+    let form = read_scan_form(request).await?;
+    let served = state.catalog.select(form.model.as_deref(), form.task.as_deref())?;
+    if !takes_scans(served) {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "needs_image",
+            format!("the model {} predicts from an image and masks or a prompt; POST them to /v1/trajectories", served.summary.name),
+        ));
+    }
+    let dir = write_scan_files(form.cameras, form.files)?;
+    let job = PipelineJob { model_dir: served.dir.clone(), roles: None, image: Vec::new(), objects: SceneObjects::Scan(Arc::new(dir)) };
+    run_job(state, served, job, None, false, started).await
+}
+
+/// A scan request's form: cameras.json, the files by name, and which model.
+struct ScanForm {
+    cameras: Vec<u8>,
+    files: Vec<(String, Vec<u8>)>,
+    task: Option<String>,
+    model: Option<String>,
+}
+
+async fn read_scan_form(request: Request) -> Result<ScanForm, ApiError> {
+    let mut form = Multipart::from_request(request, &())
+        .await
+        .map_err(|rejection| ApiError::bad_request("malformed_form", rejection.body_text()))?;
+    let (mut cameras, mut files, mut task, mut model) = (None, Vec::new(), None, None);
+    loop {
+        let field = match form.next_field().await {
+            Ok(Some(field)) => field,
+            Ok(None) => break,
+            Err(err) => return Err(form_error(err)),
+        };
+        let name = field.name().unwrap_or_default().to_owned();
+        let bytes = field.bytes().await.map_err(form_error)?.to_vec();
+        let text = |bytes: Vec<u8>| {
+            String::from_utf8(bytes).map_err(|_| ApiError::bad_request("invalid_field", format!("the form field {name:?} is not UTF-8 text")))
+        };
+        match name.as_str() {
+            "cameras" if cameras.is_none() => cameras = Some(bytes),
+            "task" if task.is_none() => task = Some(text(bytes)?),
+            "model" if model.is_none() => model = Some(text(bytes)?),
+            "cameras" | "task" | "model" => {
+                return Err(ApiError::bad_request("duplicate_field", format!("the form field {name:?} appears twice")));
+            }
+            _ if files.iter().any(|(file, _)| file == &name) => {
+                return Err(ApiError::bad_request("duplicate_field", format!("the file {name:?} appears twice")));
+            }
+            _ => files.push((name, bytes)),
+        }
+    }
+    let cameras = cameras.ok_or_else(|| {
+        ApiError::bad_request("missing_field", "the form has no \"cameras\" field (the scan's cameras.json)")
+    })?;
+    Ok(ScanForm { cameras, files, task, model })
+}
+
+/// Writes a scan's files into a new temporary directory, after checking that cameras.json is
+/// JSON with views, that every file it names is a plain file name and was sent, and that
+/// nothing else was sent. The scan's content (poses, sizes, depth values) is checked when it
+/// is read for the prediction.
+fn write_scan_files(cameras: Vec<u8>, files: Vec<(String, Vec<u8>)>) -> Result<tempfile::TempDir, ApiError> {
+    let bad = |message: String| ApiError::bad_request("invalid_scan", message);
+    let meta: serde_json::Value =
+        serde_json::from_slice(&cameras).map_err(|err| bad(format!("cameras is not JSON: {err}")))?;
+    let views = meta.get("views").and_then(|v| v.as_array()).filter(|v| !v.is_empty());
+    let views = views.ok_or_else(|| bad("cameras needs a non-empty \"views\" list".into()))?;
+    let mut named = Vec::new();
+    for (index, view) in views.iter().enumerate() {
+        let label = view.get("name").and_then(|n| n.as_str()).map_or(format!("view {}", index + 1), |n| format!("view {n}"));
+        for key in ["depth", "labels", "rgb"] {
+            match view.get(key) {
+                None if key == "rgb" => {}
+                None => return Err(bad(format!("cameras, {label}: \"{key}\" (its file name) is missing"))),
+                Some(value) => {
+                    let file = value.as_str().ok_or_else(|| bad(format!("cameras, {label}: \"{key}\" is not a file name")))?;
+                    let plain = !file.is_empty() && !file.starts_with('.') && !file.contains(['/', '\\']) && file != "cameras.json";
+                    if !plain {
+                        return Err(bad(format!("cameras, {label}: {file:?} is not a plain file name")));
+                    }
+                    named.push(file.to_owned());
+                }
+            }
+        }
+    }
+    for file in &named {
+        if !files.iter().any(|(name, _)| name == file) {
+            return Err(ApiError::bad_request("missing_file", format!("cameras names the file {file:?} but the form has no field {file:?}")));
+        }
+    }
+    if let Some((extra, _)) = files.iter().find(|(name, _)| !named.contains(name)) {
+        return Err(ApiError::bad_request(
+            "unknown_field",
+            format!("the form field {extra:?} is not a file cameras names; the form takes cameras, its files, task, model"),
+        ));
+    }
+    let dir = tempfile::Builder::new()
+        .prefix("cnfmp-scan-")
+        .tempdir()
+        .map_err(|err| ApiError::internal(format!("cannot create a scan directory: {err}")))?;
+    let write = |name: &str, bytes: &[u8]| {
+        std::fs::write(dir.path().join(name), bytes).map_err(|err| ApiError::internal(format!("cannot write the scan's {name}: {err}")))
+    };
+    write("cameras.json", &cameras)?;
+    for (name, bytes) in &files {
+        write(name, bytes)?;
+    }
+    Ok(dir)
 }
 
 /// How the request finds its objects: its masks when it sent them (checked against the image
@@ -277,15 +458,14 @@ fn build_response(
     let objects = detected_objects(served, &found, &prediction);
     let segmenter = match &found {
         FoundObjects::Segmented(found) => Some(found.document.backend.clone()),
-        FoundObjects::Given(_) => None,
+        FoundObjects::Given(_) | FoundObjects::Scanned => None,
     };
-    let masks_png_base64 = include_masks.then(|| {
-        let png = match &found {
-            FoundObjects::Segmented(found) => found.labels_png.clone(),
-            FoundObjects::Given(masks) => masks.png(),
-        };
-        base64::engine::general_purpose::STANDARD.encode(png)
-    });
+    let masks_png = match &found {
+        FoundObjects::Segmented(found) => Some(found.labels_png.clone()),
+        FoundObjects::Given(masks) => Some(masks.png()),
+        FoundObjects::Scanned => None,
+    };
+    let masks_png_base64 = masks_png.filter(|_| include_masks).map(|png| base64::engine::general_purpose::STANDARD.encode(png));
     Ok(TrajectoryResponse {
         fps: trajectory.fps,
         frames,
@@ -342,6 +522,23 @@ fn detected_objects(served: &ServedModel, found: &FoundObjects, prediction: &Pre
                 })
                 .collect()
         }
+        // A scan's objects are its label maps' labels, label k the model's k-th slot.
+        FoundObjects::Scanned => prediction
+            .objects
+            .iter()
+            .map(|estimate| DetectedObject {
+                phrase: estimate.name.clone(),
+                role: "object".into(),
+                found: estimate.present,
+                score: 1.0,
+                area: 0,
+                bbox: None,
+                centroid: None,
+                slot: Some(estimate.slot),
+                latent_weights: estimate.weights.clone(),
+                confidence: None,
+            })
+            .collect(),
         // Label k is the model's k-th slot, as for `cnfmp predict --masks`.
         FoundObjects::Given(masks) => masks
             .objects
@@ -597,9 +794,9 @@ async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
         title = "cnfmp",
         description = "Compositional Neural Field Movement Primitives: a scene image and a prompt in, a robot trajectory out."
     ),
-    paths(create_trajectory, health, list_models, metrics, openapi_json),
+    paths(create_trajectory, create_scan_trajectory, health, list_models, metrics, openapi_json),
     components(schemas(
-        TrajectoryJsonRequest, TrajectoryForm, TrajectoryResponse, Frame, ModelRef, DetectedObject, Confidence,
+        TrajectoryJsonRequest, TrajectoryForm, ScanTrajectoryForm, TrajectoryResponse, Frame, ModelRef, DetectedObject, Confidence,
         StageTimings, RecordedFrames, ModelList, ModelSummary, Health, ErrorResponse, ErrorDetail
     ))
 )]

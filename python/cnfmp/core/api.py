@@ -268,11 +268,42 @@ def start_helpers(count: int | None = None) -> str:
     return json.dumps(helper_processes.start(count, preload=("cnfmp.core.inference", "cnfmp.core.inference_cnfmp3d")))
 
 
+def synthetic_scan(config):
+    """A scan of one downward-looking camera over `config`'s scene box (a cnfmp-3d config):
+    a flat floor at the box's lower quarter and one 6 cm raised square per object slot. What
+    warm-ups predict, never a real scene."""
+    from cnfmp.scan import Scan, ScanView
+
+    size, focal = 96, 96.0
+    centre, half = np.asarray(config.box_centre), config.box_half
+    height = 2.0 * half
+    pose = np.eye(4)
+    pose[:3, :3] = np.diag([1.0, -1.0, -1.0])  # OpenCV axes looking straight down
+    pose[:3, 3] = centre + [0.0, 0.0, height]
+    floor = height + 0.5 * half
+    depth = np.full((size, size), floor, np.float32)
+    labels = np.zeros((size, size), np.uint8)
+    side = int(round(0.06 / floor * focal))
+    for k in range(config.num_objects):
+        row, col = size // 2 - side // 2, 8 + k * (side + 8)
+        depth[row:row + side, col:col + side] = floor - 0.05
+        labels[row:row + side, col:col + side] = k + 1
+    intrinsics = np.array([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1]])
+    return Scan((ScanView("synthetic", None, depth, labels, intrinsics, pose),), tuple(config.object_names))
+
+
 def warm_up(model_dir: str) -> str:
-    """Loads `model_dir` and predicts a synthetic scene with it, so that a server's first real
-    request does not pay the first call's costs (allocator growth, the fit's lazily built
-    pieces). Returns the time it took as JSON (ms)."""
+    """Loads `model_dir` and predicts a synthetic scene (or, for a model that takes scans,
+    a synthetic scan) with it, so that a server's first real request does not pay the first
+    call's costs (allocator growth, the fit's lazily built pieces). Returns the time it took
+    as JSON (ms)."""
+    from cnfmp.core.configuration_cnfmp3d import Cnfmp3dConfig
+
     started = time.perf_counter()
-    names = json.loads(describe(model_dir))["objects"] or ["object 1", "object 2"]
-    predict(model_dir, *synthetic_scene(names))
+    model = predictor(model_dir)
+    if isinstance(model.config, Cnfmp3dConfig):
+        model.predict_scan(synthetic_scan(model.config))
+    else:
+        names = json.loads(describe(model_dir))["objects"] or ["object 1", "object 2"]
+        predict(model_dir, *synthetic_scene(names))
     return json.dumps(round(1000 * (time.perf_counter() - started), 1))
