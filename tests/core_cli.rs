@@ -300,3 +300,31 @@ fn a_model_that_cannot_be_loaded_is_refused_before_the_first_scene() {
     assert_bad_input(&output, "unknown field(s) bogus_field");
     assert!(!out.exists(), "nothing is written");
 }
+
+#[test]
+fn a_shipped_scan_model_predicts_a_held_out_scan_and_refuses_what_is_not_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    let rendered = cnfmp(&["sim", "render", "--task", "drawer_place", "--seed", "1000004", "--scan", "--out", arg(&scene)]);
+    assert!(rendered.status.success(), "{}", stderr(&rendered));
+    let model = repo().join("models/drawer_place");
+    let (out, figure) = (dir.path().join("trajectory.json"), dir.path().join("fit.png"));
+    let predicted = cnfmp(&["predict", "--model", arg(&model), "--scan", arg(&scene.join("scan")), "--figure", arg(&figure),
+                            "--out", arg(&out)]);
+    assert!(predicted.status.success(), "{}", stderr(&predicted));
+    assert!(std::fs::read(&figure).unwrap().starts_with(b"\x89PNG"));
+    let executed = cnfmp(&["sim", "execute", "--task", "drawer_place", "--seed", "1000004", "--trajectory", arg(&out)]);
+    let verdict: serde_json::Value = serde_json::from_slice(&executed.stdout).unwrap();
+    assert_eq!(verdict["success"], true, "the shipped drawer model failed a held-out scene: {verdict}");
+
+    let refused = dir.path().join("refused.json");
+    let not_a_scan = cnfmp(&["predict", "--model", arg(&model), "--scan", arg(dir.path()), "--out", arg(&refused)]);
+    assert_bad_input(&not_a_scan, "cameras.json is missing");
+    let image_model = repo().join("models/cube_stacking");
+    let wrong_model = cnfmp(&["predict", "--model", arg(&image_model), "--scan", arg(&scene.join("scan")), "--out", arg(&refused)]);
+    assert_bad_input(&wrong_model, "not from a scan");
+    let image_to_scan_model = cnfmp(&["predict", "--model", arg(&model), "--image", arg(&scene.join("image.png")), "--masks",
+                                      arg(&scene.join("masks.png")), "--objects", arg(&scene.join("objects.json")), "--out", arg(&refused)]);
+    assert_bad_input(&image_to_scan_model, "predicts from a scan");
+    assert!(!refused.exists(), "a refused prediction wrote its output");
+}

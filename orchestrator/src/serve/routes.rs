@@ -156,9 +156,16 @@ struct TrajectoryInput {
     )
 )]
 async fn create_trajectory(State(state): State<Shared>, request: Request) -> Result<Json<TrajectoryResponse>, ApiError> {
-    let started = Instant::now();
+    within_time_limit(&state, answer_trajectory(&state, request, Instant::now())).await
+}
+
+/// The answer of `work`, or 504 when it takes longer than the server's request timeout.
+async fn within_time_limit(
+    state: &AppState,
+    work: impl std::future::Future<Output = Result<TrajectoryResponse, ApiError>>,
+) -> Result<Json<TrajectoryResponse>, ApiError> {
     let timeout = state.limits.request_timeout;
-    match tokio::time::timeout(timeout, answer_trajectory(&state, request, started)).await {
+    match tokio::time::timeout(timeout, work).await {
         Ok(answer) => answer.map(Json),
         Err(_) => Err(ApiError::new(
             StatusCode::GATEWAY_TIMEOUT,
@@ -246,16 +253,7 @@ async fn run_job(
     )
 )]
 async fn create_scan_trajectory(State(state): State<Shared>, request: Request) -> Result<Json<TrajectoryResponse>, ApiError> {
-    let started = Instant::now();
-    let timeout = state.limits.request_timeout;
-    match tokio::time::timeout(timeout, answer_scan_trajectory(&state, request, started)).await {
-        Ok(answer) => answer.map(Json),
-        Err(_) => Err(ApiError::new(
-            StatusCode::GATEWAY_TIMEOUT,
-            "timeout",
-            format!("the request took longer than the server's limit of {:.0} s", timeout.as_secs_f64()),
-        )),
-    }
+    within_time_limit(&state, answer_scan_trajectory(&state, request, Instant::now())).await
 }
 
 async fn answer_scan_trajectory(state: &AppState, request: Request, started: Instant) -> Result<TrajectoryResponse, ApiError> {

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cnfmp.core.occupancy import SceneBox
 from cnfmp.images import LABEL_PALETTE as PALETTE
 
 #: Side of each panel (px), the grid spacing of the reconstruction (m), and how far the
@@ -34,7 +35,7 @@ def reconstruction(model, fit, lower: np.ndarray, upper: np.ndarray, spacing_m: 
     axes = [np.arange(lower[k], upper[k] + spacing_m / 2, spacing_m) for k in range(3)]
     gx, gy, gz = np.meshgrid(*axes, indexing="ij")
     world = np.stack([gx, gy, gz], axis=-1).reshape(-1, 3)
-    box = (world - np.asarray(c.box_centre)) / c.box_half
+    box = SceneBox.of(c).to_box(world)
     occupancy, owner = [], []
     with torch.no_grad():
         for chunk in np.array_split(box.astype(np.float32), max(1, len(box) // 32768)):

@@ -95,7 +95,7 @@ class Predictor3d:
         model.eval()
         for p in model.parameters():
             p.requires_grad_(False)
-        self.box = occupancy.SceneBox(np.asarray(self.config.box_centre, dtype=np.float64), float(self.config.box_half))
+        self.box = occupancy.SceneBox.of(self.config)
         spacing = self.config.bake_spacing_m / self.config.box_half
         self.baked = [BakedTemplate(field, torch.tensor(b[:3]), torch.tensor(b[3:]), spacing)
                       for field, b in zip(model.objects, self.config.template_boxes)] if self.config.template_boxes else None

@@ -32,6 +32,11 @@ class SceneBox:
     def to_world(self, box: np.ndarray) -> np.ndarray:
         return box * self.half + self.centre
 
+    @classmethod
+    def of(cls, config) -> "SceneBox":
+        """The scene box a cnfmp-3d config's training chose (``box_centre``, ``box_half``)."""
+        return cls(np.asarray(config.box_centre, dtype=np.float64), float(config.box_half))
+
 
 def fit_box(object_points: list[np.ndarray], margin_m: float) -> SceneBox:
     """The smallest cube around every scan's object points (each (M, 3) m) with `margin_m`

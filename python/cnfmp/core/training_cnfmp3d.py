@@ -48,16 +48,12 @@ def fit_config_to_data(config: Cnfmp3dConfig, demos: core_data.Demonstrations) -
                                box_centre=[float(v) for v in box.centre], box_half=box.half)
 
 
-def scene_box(config: Cnfmp3dConfig) -> occupancy.SceneBox:
-    return occupancy.SceneBox(np.asarray(config.box_centre, dtype=np.float64), float(config.box_half))
-
-
 class ScanSamples:
     """The demonstrations' labelled sample pools as tensors, per kind: each object's
     near-surface samples, the background's, uniform ones; and each object's anchor."""
 
     def __init__(self, demos: core_data.Demonstrations, config: Cnfmp3dConfig):
-        box = scene_box(config)
+        box = occupancy.SceneBox.of(config)
         n = config.num_objects
         rng = np.random.default_rng(config.seed)
         pools: list[list[occupancy.LabelledSamples]] = []
