@@ -319,7 +319,7 @@ fn a_shipped_scan_model_predicts_a_held_out_scan_and_refuses_what_is_not_one() {
 
     let refused = dir.path().join("refused.json");
     let not_a_scan = cnfmp(&["predict", "--model", arg(&model), "--scan", arg(dir.path()), "--out", arg(&refused)]);
-    assert_bad_input(&not_a_scan, "cameras.json is missing");
+    assert_bad_input(&not_a_scan, "is not a scan");
     let image_model = repo().join("models/cube_stacking");
     let wrong_model = cnfmp(&["predict", "--model", arg(&image_model), "--scan", arg(&scene.join("scan")), "--out", arg(&refused)]);
     assert_bad_input(&wrong_model, "not from a scan");

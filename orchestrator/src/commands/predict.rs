@@ -32,7 +32,9 @@ pub struct PredictArgs {
     /// A scan instead of an image, for a model that takes scans (cnfmp-3d): a directory with
     /// cameras.json (intrinsics and world-from-camera poses, OpenCV axes) and per view a depth
     /// map (16-bit PNG in millimetres or .npy in metres) and a label map (8-bit, 0 background,
-    /// k the k-th object), as `cnfmp sim render --scan` writes it.
+    /// k the k-th object), as `cnfmp sim render --scan` writes it; or a labelled point cloud
+    /// with its sensor origins (.npz: points, labels, origins, view; .ply: vertex x y z label
+    /// view and an origin element), each origin then seen as a virtual depth view.
     #[arg(long, conflicts_with_all = ["image", "masks", "objects", "prompt", "scenes"])]
     scan: Option<PathBuf>,
     /// With --scan: also write a picture (PNG) of the scan's points beside the reconstructed
@@ -167,8 +169,12 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
 /// `cnfmp predict --scan`: one scan with a model that takes scans.
 fn predict_scan(model: &Path, scan: &Path, figure: Option<&Path>, out: &Path) -> Result<(), Failure> {
     model_task(model)?;
-    if !scan.join("cameras.json").is_file() {
-        return Err(Failure::BadInput(format!("{} is not a scan: cameras.json is missing", scan.display())));
+    let cloud = scan.is_file() && scan.extension().is_some_and(|ext| ext == "npz" || ext == "ply");
+    if !cloud && !scan.join("cameras.json").is_file() {
+        return Err(Failure::BadInput(format!(
+            "{} is not a scan: neither a directory with cameras.json nor a point cloud (.npz, .ply)",
+            scan.display()
+        )));
     }
     let bridge = Bridge::start_default()?;
     if !load_model(bridge, model)?.takes_scans() {

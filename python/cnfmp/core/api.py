@@ -116,7 +116,8 @@ def predict_batch(model_dir: str, scenes: list[tuple[bytes, bytes, list[str]]], 
 
 def predict_scan(model_dir: str, scan_dir: str, seed: int = 0, figure: str | None = None) -> str:
     """Predicts the trajectory for a scan (a directory of :mod:`cnfmp.scan`: ``cameras.json``
-    with the views' depth and label maps) with a cnfmp-3d model.
+    with the views' depth and label maps; or a labelled point cloud file with its sensor
+    origins, :mod:`cnfmp.point_cloud`) with a cnfmp-3d model.
 
     Returns the trajectory JSON of :func:`predict`; per object slot its simplex weights,
     the fit's loss, its centre (world, m) and turn about the vertical (deg). With `figure`,
@@ -133,7 +134,10 @@ def predict_scan(model_dir: str, scan_dir: str, seed: int = 0, figure: str | Non
     c = model.config
     if not isinstance(c, Cnfmp3dConfig):
         raise InputError(f"the model in {model_dir} ({c.model_type}) predicts from an image and masks, not from a scan")
-    scan = scans.read_scan(os.fspath(scan_dir))
+    from cnfmp.point_cloud import is_point_cloud, read_point_cloud
+
+    path = os.fspath(scan_dir)
+    scan = read_point_cloud(path) if is_point_cloud(path) else scans.read_scan(path)
     read = time.perf_counter()
     result = model.predict_scan(scan, seed)
     fit = result["fit"]
