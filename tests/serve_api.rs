@@ -339,6 +339,30 @@ fn scans_over_http_succeed_and_bad_scans_get_4xx() {
     let again = send(&cameras, &files, &[]);
     assert_eq!(again.status, 200, "after the bad scans: {}", again.body);
     assert_eq!(again.body["frames"], answer.body["frames"], "inference is seeded: the same scan, the same trajectory");
+
+    // The same scene as a fused point cloud with its sensor origins (made by cnfmp.scan from
+    // the rendered scan): the trajectory succeeds too; bytes that are no cloud get 400.
+    let cloud = dir.path().join("cloud.npz");
+    let fused = Command::new(repo().join(".venv/bin/python"))
+        .args(["-c", "import sys, numpy as np; from cnfmp.scan import read_scan; s = read_scan(sys.argv[1]); \
+                      p = [v.points() for v in s.views]; \
+                      np.savez(sys.argv[2], points=np.concatenate([a for a, _ in p]), labels=np.concatenate([b for _, b in p]), \
+                               view=np.concatenate([np.full(len(a), k) for k, (a, _) in enumerate(p)]), \
+                               origins=np.stack([v.world_from_camera[:3, 3] for v in s.views]), objects=np.array(s.objects))",
+               arg(&scan), arg(&cloud)])
+        .output()
+        .unwrap();
+    assert!(fused.status.success(), "{}", common::stderr(&fused));
+    let (content_type, body) = files_form(&[("cloud", std::fs::read(&cloud).unwrap())], &[]);
+    let from_cloud = post(&server.url("/v1/scan-trajectories"), &content_type, &body);
+    assert_eq!(from_cloud.status, 200, "{}", from_cloud.body);
+    std::fs::write(&path, json!({"fps": from_cloud.body["fps"], "frames": from_cloud.body["frames"]}).to_string()).unwrap();
+    let executed = cnfmp(&["sim", "execute", "--task", SCAN_TASK, "--seed", SCAN_SEED, "--trajectory", arg(&path)]);
+    let verdict: Value = serde_json::from_slice(&executed.stdout).unwrap();
+    assert_eq!(verdict["success"], true, "the point cloud's trajectory failed in the simulator: {verdict}");
+    let (content_type, body) = files_form(&[("cloud", b"not a cloud".to_vec())], &[]);
+    let not_a_cloud = post(&server.url("/v1/scan-trajectories"), &content_type, &body);
+    assert_eq!((not_a_cloud.status, not_a_cloud.body["error"]["code"].as_str()), (400, Some("invalid_scan")), "{}", not_a_cloud.body);
 }
 
 #[test]

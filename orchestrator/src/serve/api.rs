@@ -78,8 +78,12 @@ pub struct ScanTrajectoryForm {
     /// The scan's cameras.json: `{"objects": [names in label order], "depth_unit": "mm",
     /// "views": [{"name", "width", "height", "intrinsics": 3x3, "world_from_camera": 4x4
     /// (OpenCV camera axes, metres), "depth", "labels", "rgb" (optional): file names}]}`.
-    #[schema(value_type = String, format = Binary)]
-    pub cameras: Vec<u8>,
+    #[schema(value_type = Option<String>, format = Binary)]
+    pub cameras: Option<Vec<u8>>,
+    /// Instead of a scan: a labelled point cloud with its sensor origins (.npz: points,
+    /// labels, origins, view; .ply: vertex x y z label view and an origin element).
+    #[schema(value_type = Option<String>, format = Binary)]
+    pub cloud: Option<Vec<u8>>,
     /// Use the served model trained on this task.
     #[schema(example = "drawer_place")]
     pub task: Option<String>,

@@ -22,9 +22,8 @@ pub enum SceneObjects {
     Prompt(String),
     /// The request carried the coarse masks.
     Masks(CoarseMasks),
-    /// The request was a scan (for a model that takes scans): its files, written to a
-    /// directory that lives as long as the job.
-    Scan(Arc<tempfile::TempDir>),
+    /// The request was a scan or a point cloud (for a model that takes scans).
+    Scan(Arc<UploadedScan>),
 }
 
 /// The Python work of one trajectory request.
@@ -36,6 +35,20 @@ pub struct PipelineJob {
     /// The scene image as sent (PNG, JPEG, ...).
     pub image: Vec<u8>,
     pub objects: SceneObjects,
+}
+
+/// A request's scan written to a directory that lives as long as the job: the scan directory
+/// itself, or the directory of a point cloud file (`file`).
+pub struct UploadedScan {
+    pub dir: tempfile::TempDir,
+    pub file: Option<&'static str>,
+}
+
+impl UploadedScan {
+    /// What `cnfmp predict --scan` would be given: the directory, or the cloud file in it.
+    pub fn path(&self) -> PathBuf {
+        self.file.map_or_else(|| self.dir.path().to_path_buf(), |file| self.dir.path().join(file))
+    }
 }
 
 /// The coarse masks a request was answered with.
@@ -160,11 +173,11 @@ fn run_batch(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob
 
 /// One scan job: its files predicted by the model that takes scans.
 fn predict_scan(bridge: &Bridge, model_dir: &std::path::Path, job: PipelineJob) -> PipelineResult {
-    let SceneObjects::Scan(dir) = job.objects else {
+    let SceneObjects::Scan(scan) = job.objects else {
         return Err(ApiError::internal("an image job in a batch of scans"));
     };
     let started = Instant::now();
-    let prediction = bridge.core_predict_scan(model_dir, dir.path(), None)?;
+    let prediction = bridge.core_predict_scan(model_dir, &scan.path(), None)?;
     Ok(PipelineOutput { found: FoundObjects::Scanned, prediction, segment_s: 0.0, infer_s: started.elapsed().as_secs_f64() })
 }
 

@@ -20,7 +20,7 @@ use super::api::*;
 use super::catalog::{Catalog, ServedModel};
 use super::error::{ApiError, ErrorCode, InternalDetail, REQUEST_ID, request_id};
 use super::metrics::Metrics;
-use super::pipeline::{FoundObjects, Pipeline, PipelineJob, PipelineOutput, SceneObjects};
+use super::pipeline::{FoundObjects, Pipeline, PipelineJob, PipelineOutput, SceneObjects, UploadedScan};
 use segmenter_bridge::Prediction;
 use super::queue::Refused;
 use crate::scene_masks::{self, CoarseMasks, MaskError};
@@ -234,7 +234,8 @@ async fn run_job(
 ///
 /// A scan is several calibrated depth views with their label maps: `cameras` (the scan's
 /// cameras.json) and every file it names, each as a form file whose field name is that file
-/// name, as `cnfmp predict --scan DIR` reads a directory (README, "3D scenes").
+/// name, as `cnfmp predict --scan DIR` reads a directory (README, "3D scenes"). Or a
+/// labelled point cloud with its sensor origins: one `cloud` file (.npz or .ply).
 #[utoipa::path(
     post,
     path = "/v1/scan-trajectories",
@@ -273,14 +274,30 @@ async fn answer_scan_trajectory(state: &AppState, request: Request, started: Ins
             format!("the model {} predicts from an image and masks or a prompt; POST them to /v1/trajectories", served.summary.name),
         ));
     }
-    let dir = write_scan_files(form.cameras, form.files)?;
-    let job = PipelineJob { model_dir: served.dir.clone(), roles: None, image: Vec::new(), objects: SceneObjects::Scan(Arc::new(dir)) };
+    let scan = match (form.cameras, form.cloud) {
+        (Some(cameras), None) => write_scan_files(cameras, form.files)?,
+        (None, Some(cloud)) if form.files.is_empty() => write_point_cloud(cloud)?,
+        (None, Some(_)) => {
+            return Err(ApiError::bad_request("unknown_field", "a point cloud request takes `cloud` alone (and task, model), no other files"));
+        }
+        (Some(_), Some(_)) => {
+            return Err(ApiError::bad_request("invalid_scan", "send either a scan (`cameras` and its files) or a point cloud (`cloud`), not both"));
+        }
+        (None, None) => {
+            return Err(ApiError::bad_request(
+                "missing_field",
+                "the form has neither a \"cameras\" field (the scan's cameras.json) nor a \"cloud\" file (.npz or .ply)",
+            ));
+        }
+    };
+    let job = PipelineJob { model_dir: served.dir.clone(), roles: None, image: Vec::new(), objects: SceneObjects::Scan(Arc::new(scan)) };
     run_job(state, served, job, None, false, started).await
 }
 
-/// A scan request's form: cameras.json, the files by name, and which model.
+/// A scan request's form: cameras.json and the files by name, or a point cloud; which model.
 struct ScanForm {
-    cameras: Vec<u8>,
+    cameras: Option<Vec<u8>>,
+    cloud: Option<Vec<u8>>,
     files: Vec<(String, Vec<u8>)>,
     task: Option<String>,
     model: Option<String>,
@@ -290,7 +307,7 @@ async fn read_scan_form(request: Request) -> Result<ScanForm, ApiError> {
     let mut form = Multipart::from_request(request, &())
         .await
         .map_err(|rejection| ApiError::bad_request("malformed_form", rejection.body_text()))?;
-    let (mut cameras, mut files, mut task, mut model) = (None, Vec::new(), None, None);
+    let (mut cameras, mut cloud, mut files, mut task, mut model) = (None, None, Vec::new(), None, None);
     loop {
         let field = match form.next_field().await {
             Ok(Some(field)) => field,
@@ -304,9 +321,10 @@ async fn read_scan_form(request: Request) -> Result<ScanForm, ApiError> {
         };
         match name.as_str() {
             "cameras" if cameras.is_none() => cameras = Some(bytes),
+            "cloud" if cloud.is_none() => cloud = Some(bytes),
             "task" if task.is_none() => task = Some(text(bytes)?),
             "model" if model.is_none() => model = Some(text(bytes)?),
-            "cameras" | "task" | "model" => {
+            "cameras" | "cloud" | "task" | "model" => {
                 return Err(ApiError::bad_request("duplicate_field", format!("the form field {name:?} appears twice")));
             }
             _ if files.iter().any(|(file, _)| file == &name) => {
@@ -315,17 +333,36 @@ async fn read_scan_form(request: Request) -> Result<ScanForm, ApiError> {
             _ => files.push((name, bytes)),
         }
     }
-    let cameras = cameras.ok_or_else(|| {
-        ApiError::bad_request("missing_field", "the form has no \"cameras\" field (the scan's cameras.json)")
-    })?;
-    Ok(ScanForm { cameras, files, task, model })
+    Ok(ScanForm { cameras, cloud, files, task, model })
+}
+
+/// Writes a point cloud (a .npz or a .ply file, told apart by their first bytes) into a new
+/// temporary directory; its content is checked when it is read for the prediction.
+fn write_point_cloud(cloud: Vec<u8>) -> Result<UploadedScan, ApiError> {
+    let name = if cloud.starts_with(b"PK") {
+        "cloud.npz"
+    } else if cloud.starts_with(b"ply") {
+        "cloud.ply"
+    } else {
+        return Err(ApiError::bad_request("invalid_scan", "the cloud is neither a .npz (zip) nor a .ply file"));
+    };
+    let dir = scan_directory()?;
+    std::fs::write(dir.path().join(name), &cloud).map_err(|err| ApiError::internal(format!("cannot write the point cloud: {err}")))?;
+    Ok(UploadedScan { dir, file: Some(name) })
+}
+
+fn scan_directory() -> Result<tempfile::TempDir, ApiError> {
+    tempfile::Builder::new()
+        .prefix("cnfmp-scan-")
+        .tempdir()
+        .map_err(|err| ApiError::internal(format!("cannot create a scan directory: {err}")))
 }
 
 /// Writes a scan's files into a new temporary directory, after checking that cameras.json is
 /// JSON with views, that every file it names is a plain file name and was sent, and that
 /// nothing else was sent. The scan's content (poses, sizes, depth values) is checked when it
 /// is read for the prediction.
-fn write_scan_files(cameras: Vec<u8>, files: Vec<(String, Vec<u8>)>) -> Result<tempfile::TempDir, ApiError> {
+fn write_scan_files(cameras: Vec<u8>, files: Vec<(String, Vec<u8>)>) -> Result<UploadedScan, ApiError> {
     let bad = |message: String| ApiError::bad_request("invalid_scan", message);
     let meta: serde_json::Value =
         serde_json::from_slice(&cameras).map_err(|err| bad(format!("cameras is not JSON: {err}")))?;
@@ -360,10 +397,7 @@ fn write_scan_files(cameras: Vec<u8>, files: Vec<(String, Vec<u8>)>) -> Result<t
             format!("the form field {extra:?} is not a file cameras names; the form takes cameras, its files, task, model"),
         ));
     }
-    let dir = tempfile::Builder::new()
-        .prefix("cnfmp-scan-")
-        .tempdir()
-        .map_err(|err| ApiError::internal(format!("cannot create a scan directory: {err}")))?;
+    let dir = scan_directory()?;
     let write = |name: &str, bytes: &[u8]| {
         std::fs::write(dir.path().join(name), bytes).map_err(|err| ApiError::internal(format!("cannot write the scan's {name}: {err}")))
     };
@@ -371,7 +405,7 @@ fn write_scan_files(cameras: Vec<u8>, files: Vec<(String, Vec<u8>)>) -> Result<t
     for (name, bytes) in &files {
         write(name, bytes)?;
     }
-    Ok(dir)
+    Ok(UploadedScan { dir, file: None })
 }
 
 /// How the request finds its objects: its masks when it sent them (checked against the image
