@@ -326,5 +326,8 @@ fn a_shipped_scan_model_predicts_a_held_out_scan_and_refuses_what_is_not_one() {
     let image_to_scan_model = cnfmp(&["predict", "--model", arg(&model), "--image", arg(&scene.join("image.png")), "--masks",
                                       arg(&scene.join("masks.png")), "--objects", arg(&scene.join("objects.json")), "--out", arg(&refused)]);
     assert_bad_input(&image_to_scan_model, "predicts from a scan");
+    let unpromptable = cnfmp(&["predict", "--model", arg(&model), "--scan", arg(&scene.join("scan")), "--prompt",
+                                "put the carton box in the drawer", "--out", arg(&refused)]);
+    assert_bad_input(&unpromptable, "no prompt roles");
     assert!(!refused.exists(), "a refused prediction wrote its output");
 }

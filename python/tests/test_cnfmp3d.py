@@ -252,3 +252,26 @@ def test_bad_point_clouds_are_refused(held_out, tmp_path):
     model = os.path.join(os.path.dirname(__file__), "..", "..", "models", "drawer_place")
     with pytest.raises(InputError, match="no points of carton box"):
         api.predict_scan(model, str(no_carton))
+
+
+def test_a_prompt_labels_a_scans_views_by_the_models_roles():
+    from cnfmp.sim.tasks import get_task
+
+    scene = get_task("language_pick_place").scene(1_000_003)
+    scan = render_scan(scene)
+    config = Cnfmp3dConfig(task="language_pick_place", num_objects=2, object_names=list(scene.objects[:2]))
+    labelled = api.segmented_scan(config, scan, scene.prompt)
+    front = labelled.views[0]
+    truth = scan.views[0].labels
+    for slot in (1, 2):  # the target, then the destination: the simulator's first two labels
+        found, true = front.labels == slot, truth == slot
+        assert (found & true).sum() / max(1, (found | true).sum()) > 0.5, slot
+    # The other views are segmented too: the target is found in at least one of them.
+    assert any((view.labels == 1).any() for view in labelled.views[1:])
+
+
+def test_a_prompt_cannot_drive_a_scan_model_without_roles(held_out):
+    _, scan = held_out
+    config = Cnfmp3dConfig(task="drawer_place", num_objects=2)
+    with pytest.raises(InputError, match="no prompt roles"):
+        api.segmented_scan(config, scan, "put the carton box in the drawer")

@@ -99,6 +99,15 @@ pub struct ModelInfo {
     pub model_type: String,
 }
 
+/// How a scan's objects are found from a prompt instead of its label maps: the segmenter
+/// `backend` (with `weights`) on each view's RGB image.
+#[derive(Debug, Clone)]
+pub struct ScanLabelling {
+    pub prompt: String,
+    pub backend: String,
+    pub weights: Option<PathBuf>,
+}
+
 /// A prediction: the trajectory JSON of design.md (`fps`, `frames`) plus diagnostics.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Prediction {
@@ -262,11 +271,23 @@ impl Bridge {
     /// maps, `cnfmp.scan`) with the (resident) cnfmp-3d model in `model_dir`
     /// (`cnfmp.core.api.predict_scan`); with `figure`, also writes the picture of the scan's
     /// points, the reconstructed surface and the path there (PNG). A bad scan is `InvalidInput`.
-    pub fn core_predict_scan(&self, model_dir: &Path, scan_dir: &Path, figure: Option<&Path>) -> Result<Prediction, BridgeError> {
+    /// With `labelling`, the scan's label maps are the segmenter's on its RGB views for a prompt.
+    pub fn core_predict_scan(
+        &self,
+        model_dir: &Path,
+        scan_dir: &Path,
+        figure: Option<&Path>,
+        labelling: Option<ScanLabelling>,
+    ) -> Result<Prediction, BridgeError> {
         let (model_dir, scan_dir, figure) = (model_dir.to_path_buf(), scan_dir.to_path_buf(), figure.map(Path::to_path_buf));
         let json: String = self.call(move |py| {
             let run = || -> PyResult<String> {
                 let kwargs = kwargs!(py, model_dir = model_dir, scan_dir = scan_dir, figure = figure);
+                if let Some(labelling) = labelling {
+                    kwargs.set_item("prompt", labelling.prompt)?;
+                    kwargs.set_item("backend_name", labelling.backend)?;
+                    kwargs.set_item("weights", labelling.weights)?;
+                }
                 py.import("cnfmp.core.api")?.call_method("predict_scan", (), Some(&kwargs))?.extract()
             };
             run().map_err(|err| BridgeError::python(py, &err))

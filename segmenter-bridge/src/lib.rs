@@ -41,7 +41,7 @@ mod tests;
 
 pub use calls::{ArrayRoundTrip, DoctorCheck, DoctorReport, PythonInfo, StartupReport, StartupStage};
 pub use dataset::{AnnotateReport, AnnotateRequest, DatasetCheck, DatasetEpisodes, DatasetInspection, Hdf5Demo, Hdf5Listing, InspectedEpisode, SkippedEpisode, StagedWriteReport};
-pub use core::{DrawChoice, ModelDescription, ModelInfo, ObjectEstimate, Prediction, RecordedMotion, SceneToPredict, TrainReport, TrainRequest};
+pub use core::{DrawChoice, ModelDescription, ModelInfo, ObjectEstimate, Prediction, RecordedMotion, ScanLabelling, SceneToPredict, TrainReport, TrainRequest};
 pub use error::{BridgeError, PythonException, TRACEBACK_FRAMES};
 pub use interpreter::BridgeConfig;
 pub use segment::{SegmentDocument, SegmentRequest, SegmentedObject, Segmentation, SegmenterTrainRequest, SlotAssignment};

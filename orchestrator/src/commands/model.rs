@@ -274,7 +274,7 @@ fn run_episode(
         (scene.masks, scene.info.objects, None)
     };
     let predicted = match &scene.scan {
-        Some(scan) => bridge.core_predict_scan(&args.model, scan, None),
+        Some(scan) => bridge.core_predict_scan(&args.model, scan, None, None),
         None => bridge.core_predict(&args.model, scene.image, masks, objects),
     };
     let prediction = match predicted {

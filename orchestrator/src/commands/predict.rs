@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::Args;
-use segmenter_bridge::{Bridge, ObjectEstimate, Prediction, Segmentation};
+use segmenter_bridge::{Bridge, ObjectEstimate, Prediction, ScanLabelling, Segmentation};
 use serde::Serialize;
 use serde_json::{Map, Value};
 
@@ -35,7 +35,8 @@ pub struct PredictArgs {
     /// k the k-th object), as `cnfmp sim render --scan` writes it; or a labelled point cloud
     /// with its sensor origins (.npz: points, labels, origins, view; .ply: vertex x y z label
     /// view and an origin element), each origin then seen as a virtual depth view.
-    #[arg(long, conflicts_with_all = ["image", "masks", "objects", "prompt", "scenes"])]
+    /// With --prompt, the label maps are the segmenter's on the views' RGB images instead.
+    #[arg(long, conflicts_with_all = ["image", "masks", "objects", "scenes"])]
     scan: Option<PathBuf>,
     /// With --scan: also write a picture (PNG) of the scan's points beside the reconstructed
     /// surface (marching cubes of the model's occupancy, coloured by object), with the path.
@@ -137,7 +138,12 @@ fn inference_ms(prediction: &Prediction) -> f64 {
 
 pub fn predict(args: PredictArgs) -> Result<(), Failure> {
     if let Some(scan) = &args.scan {
-        return predict_scan(&args.model, scan, args.figure.as_deref(), &args.out);
+        let labelling = args.prompt.map(|prompt| ScanLabelling {
+            prompt,
+            backend: args.segmenter.backend.clone(),
+            weights: args.segmenter.weights.clone(),
+        });
+        return predict_scan(&args.model, scan, args.figure.as_deref(), labelling, &args.out);
     }
     let (image, objects) = match (args.image, args.masks, args.objects, args.prompt, args.scenes) {
         (None, None, None, None, Some(scenes)) => return predict_scenes(&args.model, &scenes, &args.segmenter, &args.out),
@@ -167,7 +173,7 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
 }
 
 /// `cnfmp predict --scan`: one scan with a model that takes scans.
-fn predict_scan(model: &Path, scan: &Path, figure: Option<&Path>, out: &Path) -> Result<(), Failure> {
+fn predict_scan(model: &Path, scan: &Path, figure: Option<&Path>, labelling: Option<ScanLabelling>, out: &Path) -> Result<(), Failure> {
     model_task(model)?;
     let cloud = scan.is_file() && scan.extension().is_some_and(|ext| ext == "npz" || ext == "ply");
     if !cloud && !scan.join("cameras.json").is_file() {
@@ -183,7 +189,7 @@ fn predict_scan(model: &Path, scan: &Path, figure: Option<&Path>, out: &Path) ->
             model.display()
         )));
     }
-    let prediction = bridge.core_predict_scan(model, scan, figure)?;
+    let prediction = bridge.core_predict_scan(model, scan, figure, labelling)?;
     let trajectory = trajectory_of(&prediction)?;
     write_atomically(out, trajectory.to_json_string().as_bytes())?;
     let objects: Vec<String> = prediction.objects.iter().map(|o| o.name.clone()).collect();

@@ -177,7 +177,7 @@ fn predict_scan(bridge: &Bridge, model_dir: &std::path::Path, job: PipelineJob) 
         return Err(ApiError::internal("an image job in a batch of scans"));
     };
     let started = Instant::now();
-    let prediction = bridge.core_predict_scan(model_dir, &scan.path(), None)?;
+    let prediction = bridge.core_predict_scan(model_dir, &scan.path(), None, None)?;
     Ok(PipelineOutput { found: FoundObjects::Scanned, prediction, segment_s: 0.0, infer_s: started.elapsed().as_secs_f64() })
 }
 

@@ -114,13 +114,16 @@ def predict_batch(model_dir: str, scenes: list[tuple[bytes, bytes, list[str]]], 
     return answers
 
 
-def predict_scan(model_dir: str, scan_dir: str, seed: int = 0, figure: str | None = None) -> str:
+def predict_scan(model_dir: str, scan_dir: str, seed: int = 0, figure: str | None = None, prompt: str | None = None,
+                 backend_name: str = "auto", weights: str | None = None) -> str:
     """Predicts the trajectory for a scan (a directory of :mod:`cnfmp.scan`: ``cameras.json``
     with the views' depth and label maps; or a labelled point cloud file with its sensor
     origins, :mod:`cnfmp.point_cloud`) with a cnfmp-3d model.
 
     Returns the trajectory JSON of :func:`predict`; per object slot its simplex weights,
-    the fit's loss, its centre (world, m) and turn about the vertical (deg). With `figure`,
+    the fit's loss, its centre (world, m) and turn about the vertical (deg). With `prompt`,
+    the scan's label maps are replaced by the segmenter's on its RGB views (backend
+    `backend_name`, `weights`), ordered by the model's prompt roles. With `figure`,
     also writes a picture of the scan's points, the reconstructed surface and the path there
     (PNG, :func:`cnfmp.core.figures_3d.scan_figure`). InputError for a bad scan or a model
     that does not take scans.
@@ -138,6 +141,8 @@ def predict_scan(model_dir: str, scan_dir: str, seed: int = 0, figure: str | Non
 
     path = os.fspath(scan_dir)
     scan = read_point_cloud(path) if is_point_cloud(path) else scans.read_scan(path)
+    if prompt is not None:
+        scan = segmented_scan(c, scan, prompt, backend_name, weights)
     read = time.perf_counter()
     result = model.predict_scan(scan, seed)
     fit = result["fit"]
@@ -154,6 +159,38 @@ def predict_scan(model_dir: str, scan_dir: str, seed: int = 0, figure: str | Non
 
         scan_figure(model.model, scan, fit, result["trajectory"], os.fspath(figure))
     return _trajectory_document(model_dir, c, result["trajectory"], slots, None, timings)
+
+
+def segmented_scan(config, scan, prompt: str, backend_name: str = "auto", weights: str | None = None):
+    """`scan` with each view's label map found by the segmenter on its RGB image for
+    `prompt`, label k the phrase filling the model's k-th slot (its prompt roles). A view
+    where the segmenter grounds nothing is left unlabelled (background); InputError when the
+    model has no prompt roles, a view has no RGB image, or no view grounds the prompt."""
+    import dataclasses
+
+    from cnfmp.segmenter import api as segmenter_api
+    from cnfmp.segmenter import phrases
+
+    roles = phrases.vocabulary()["task_roles"].get(config.task)
+    if not roles:
+        raise InputError(f"the model's task {config.task!r} has no prompt roles (prompts/vocabulary.json), so a "
+                         "prompt cannot name its objects; send the scan with its label maps")
+    views, failures = [], []
+    for view in scan.views:
+        if view.rgb is None:
+            raise InputError(f"view {view.name} has no RGB image: a prompt is segmented on the views' colour")
+        try:
+            found = segmenter_api.segment(encode_png(view.rgb), prompt, backend_name, weights, roles=list(roles),
+                                          pictures=False)
+            labels = decode_labels(found["labels_png"])
+        except InputError as err:
+            failures.append(f"{view.name}: {err}")
+            labels = np.zeros_like(view.labels)
+        views.append(dataclasses.replace(view, labels=labels))
+    if len(failures) == len(views):
+        raise InputError(f"the prompt {prompt!r} was grounded in no view of the scan ({'; '.join(failures)})")
+    names = tuple(scan.objects) or tuple(config.object_names)
+    return type(scan)(tuple(views), names)
 
 
 def _decoded_scene(config, image_png: bytes, masks_png: bytes, objects: list[str]) -> tuple:
@@ -234,7 +271,8 @@ def describe(model_dir: str) -> str:
     if isinstance(c, Cnfmp3dConfig):
         return json.dumps({"task": c.task, "type": c.model_type, "objects": list(c.object_names),
                            "task_objects": c.num_objects, "takes_distractors": False,
-                           "parameters": model.model.parameter_count(), "roles": None, "output_fps": c.output_fps,
+                           "parameters": model.model.parameter_count(),
+                           "roles": phrases.vocabulary()["task_roles"].get(c.task), "output_fps": c.output_fps,
                            "duration_s": c.duration_s, "input": "scan"})
     object_centric = isinstance(c, CnfmpConfig)
     # Prompts fill object slots; a model without objects can only be driven by masks.
