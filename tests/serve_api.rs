@@ -330,6 +330,8 @@ fn scans_over_http_succeed_and_bad_scans_get_4xx() {
         let message = answer.body["error"]["message"].as_str().unwrap_or_default();
         assert!(message.contains(mention), "{what}: {message}");
     }
+    let unpromptable = send(&cameras, &files, &[("prompt", "put the carton box in the drawer")]);
+    assert_eq!((unpromptable.status, unpromptable.body["error"]["code"].as_str()), (422, Some("not_promptable")), "{}", unpromptable.body);
     let image_model = send(&cameras, &files, &[("model", TASK)]);
     assert_eq!((image_model.status, image_model.body["error"]["code"].as_str()), (422, Some("needs_image")), "{}", image_model.body);
     let image = std::fs::read(rendered.join("image.png")).unwrap();

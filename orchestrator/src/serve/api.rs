@@ -84,6 +84,10 @@ pub struct ScanTrajectoryForm {
     /// labels, origins, view; .ply: vertex x y z label view and an origin element).
     #[schema(value_type = Option<String>, format = Binary)]
     pub cloud: Option<Vec<u8>>,
+    /// Find the objects with the segmenter on the views' RGB images (a model with prompt
+    /// roles) instead of the label maps.
+    #[schema(min_length = 1, max_length = 1000)]
+    pub prompt: Option<String>,
     /// Use the served model trained on this task.
     #[schema(example = "drawer_place")]
     pub task: Option<String>,

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use segmenter_bridge::{Bridge, BridgeError, Prediction, SceneToPredict, SegmentRequest, Segmentation};
+use segmenter_bridge::{Bridge, BridgeError, Prediction, ScanLabelling, SceneToPredict, SegmentRequest, Segmentation};
 use tokio::sync::oneshot;
 
 use super::error::ApiError;
@@ -42,6 +42,9 @@ pub struct PipelineJob {
 pub struct UploadedScan {
     pub dir: tempfile::TempDir,
     pub file: Option<&'static str>,
+    /// A prompt whose objects the segmenter finds in the views' RGB images, instead of the
+    /// scan's label maps.
+    pub prompt: Option<String>,
 }
 
 impl UploadedScan {
@@ -143,7 +146,7 @@ fn run_batch(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob
     let Some(model_dir) = jobs.first().map(|job| job.model_dir.clone()) else { return Vec::new() };
     if jobs.iter().any(|job| matches!(job.objects, SceneObjects::Scan(_))) {
         // A model takes scans or images, never both (the routes check): a batch of scans.
-        return jobs.into_iter().map(|job| predict_scan(bridge, &model_dir, job)).collect();
+        return jobs.into_iter().map(|job| predict_scan(bridge, segmenter, &model_dir, job)).collect();
     }
     let mut scenes = Vec::with_capacity(jobs.len());
     let found: Vec<Result<(FoundObjects, f64), ApiError>> = find_objects(bridge, segmenter, jobs)
@@ -172,12 +175,18 @@ fn run_batch(bridge: &Bridge, segmenter: &SegmenterChoice, jobs: Vec<PipelineJob
 }
 
 /// One scan job: its files predicted by the model that takes scans.
-fn predict_scan(bridge: &Bridge, model_dir: &std::path::Path, job: PipelineJob) -> PipelineResult {
+/// With a prompt, the segmenter labels the scan's RGB views (counted in the prediction's time).
+fn predict_scan(bridge: &Bridge, segmenter: &SegmenterChoice, model_dir: &std::path::Path, job: PipelineJob) -> PipelineResult {
     let SceneObjects::Scan(scan) = job.objects else {
         return Err(ApiError::internal("an image job in a batch of scans"));
     };
+    let labelling = scan.prompt.clone().map(|prompt| ScanLabelling {
+        prompt,
+        backend: segmenter.backend.clone(),
+        weights: segmenter.weights.clone(),
+    });
     let started = Instant::now();
-    let prediction = bridge.core_predict_scan(model_dir, &scan.path(), None, None)?;
+    let prediction = bridge.core_predict_scan(model_dir, &scan.path(), None, labelling)?;
     Ok(PipelineOutput { found: FoundObjects::Scanned, prediction, segment_s: 0.0, infer_s: started.elapsed().as_secs_f64() })
 }
 

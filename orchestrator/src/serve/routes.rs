@@ -290,14 +290,24 @@ async fn answer_scan_trajectory(state: &AppState, request: Request, started: Ins
             ));
         }
     };
+    let prompt = form.prompt.as_deref().map(|prompt| check_prompt(prompt, state.limits.max_prompt_chars)).transpose()?;
+    if prompt.is_some() && served.summary.roles.is_none() {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "not_promptable",
+            format!("the model {} has no prompt roles; send the scan with its label maps", served.summary.name),
+        ));
+    }
+    let scan = UploadedScan { prompt: prompt.clone(), ..scan };
     let job = PipelineJob { model_dir: served.dir.clone(), roles: None, image: Vec::new(), objects: SceneObjects::Scan(Arc::new(scan)) };
-    run_job(state, served, job, None, false, started).await
+    run_job(state, served, job, prompt, false, started).await
 }
 
 /// A scan request's form: cameras.json and the files by name, or a point cloud; which model.
 struct ScanForm {
     cameras: Option<Vec<u8>>,
     cloud: Option<Vec<u8>>,
+    prompt: Option<String>,
     files: Vec<(String, Vec<u8>)>,
     task: Option<String>,
     model: Option<String>,
@@ -307,7 +317,7 @@ async fn read_scan_form(request: Request) -> Result<ScanForm, ApiError> {
     let mut form = Multipart::from_request(request, &())
         .await
         .map_err(|rejection| ApiError::bad_request("malformed_form", rejection.body_text()))?;
-    let (mut cameras, mut cloud, mut files, mut task, mut model) = (None, None, Vec::new(), None, None);
+    let (mut cameras, mut cloud, mut files, mut task, mut model, mut prompt) = (None, None, Vec::new(), None, None, None);
     loop {
         let field = match form.next_field().await {
             Ok(Some(field)) => field,
@@ -324,7 +334,8 @@ async fn read_scan_form(request: Request) -> Result<ScanForm, ApiError> {
             "cloud" if cloud.is_none() => cloud = Some(bytes),
             "task" if task.is_none() => task = Some(text(bytes)?),
             "model" if model.is_none() => model = Some(text(bytes)?),
-            "cameras" | "cloud" | "task" | "model" => {
+            "prompt" if prompt.is_none() => prompt = Some(text(bytes)?),
+            "cameras" | "cloud" | "task" | "model" | "prompt" => {
                 return Err(ApiError::bad_request("duplicate_field", format!("the form field {name:?} appears twice")));
             }
             _ if files.iter().any(|(file, _)| file == &name) => {
@@ -333,7 +344,7 @@ async fn read_scan_form(request: Request) -> Result<ScanForm, ApiError> {
             _ => files.push((name, bytes)),
         }
     }
-    Ok(ScanForm { cameras, cloud, files, task, model })
+    Ok(ScanForm { cameras, cloud, prompt, files, task, model })
 }
 
 /// Writes a point cloud (a .npz or a .ply file, told apart by their first bytes) into a new
@@ -348,7 +359,7 @@ fn write_point_cloud(cloud: Vec<u8>) -> Result<UploadedScan, ApiError> {
     };
     let dir = scan_directory()?;
     std::fs::write(dir.path().join(name), &cloud).map_err(|err| ApiError::internal(format!("cannot write the point cloud: {err}")))?;
-    Ok(UploadedScan { dir, file: Some(name) })
+    Ok(UploadedScan { dir, file: Some(name), prompt: None })
 }
 
 fn scan_directory() -> Result<tempfile::TempDir, ApiError> {
@@ -394,7 +405,7 @@ fn write_scan_files(cameras: Vec<u8>, files: Vec<(String, Vec<u8>)>) -> Result<U
     if let Some((extra, _)) = files.iter().find(|(name, _)| !named.contains(name)) {
         return Err(ApiError::bad_request(
             "unknown_field",
-            format!("the form field {extra:?} is not a file cameras names; the form takes cameras, its files, task, model"),
+            format!("the form field {extra:?} is not a file cameras names; the form takes cameras, its files, prompt, task, model"),
         ));
     }
     let dir = scan_directory()?;
@@ -405,7 +416,7 @@ fn write_scan_files(cameras: Vec<u8>, files: Vec<(String, Vec<u8>)>) -> Result<U
     for (name, bytes) in &files {
         write(name, bytes)?;
     }
-    Ok(UploadedScan { dir, file: None })
+    Ok(UploadedScan { dir, file: None, prompt: None })
 }
 
 /// How the request finds its objects: its masks when it sent them (checked against the image
