@@ -103,12 +103,10 @@ def write_scan(scan: Scan, out_dir: str) -> None:
         for view in scan.views:
             kinds = ("rgb", "depth", "labels") if view.rgb is not None else ("depth", "labels")
             files = {kind: f"{view.name}_{kind}.png" for kind in kinds}
-            millimetres = np.round(view.depth.astype(np.float64) * 1000.0)
-            if millimetres.max(initial=0) > 65535:
-                raise InputError(f"view {view.name}: depth beyond 65.535 m cannot be written as 16-bit millimetres")
+            millimetres = _millimetres(view)
             if view.rgb is not None:
                 Image.fromarray(view.rgb).save(os.path.join(staging, files["rgb"]))
-            Image.fromarray(millimetres.astype(np.uint16)).save(os.path.join(staging, files["depth"]))
+            Image.fromarray(millimetres).save(os.path.join(staging, files["depth"]))
             Image.fromarray(view.labels).save(os.path.join(staging, files["labels"]))
             height, width = view.depth.shape
             entries.append({"name": view.name, "width": width, "height": height,
@@ -157,14 +155,7 @@ def _read_view(scan_dir: str, path: str, index: int, entry, depth_unit: str) -> 
     for key in ("intrinsics", "world_from_camera", "depth", "labels", "width", "height"):
         if key not in entry:
             raise InputError(f"{where}: \"{key}\" is missing")
-    intrinsics = _matrix(entry["intrinsics"], (3, 3), where, "intrinsics")
-    pose = _matrix(entry["world_from_camera"], (4, 4), where, "world_from_camera")
-    rotation = pose[:3, :3]
-    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4) or not np.allclose(pose[3], [0, 0, 0, 1]) \
-            or np.linalg.det(rotation) < 0:
-        raise InputError(f"{where}: world_from_camera is not a rigid transform (rotation and translation)")
-    if not (intrinsics[0, 0] > 0 and intrinsics[1, 1] > 0):
-        raise InputError(f"{where}: intrinsics need positive focal lengths")
+    intrinsics, pose = _camera(entry, where)
     size = (int(entry["height"]), int(entry["width"]))
     rgb = _image(scan_dir, entry["rgb"], where, "rgb") if "rgb" in entry else None
     depth = _depth(scan_dir, entry["depth"], where, depth_unit)
@@ -180,6 +171,28 @@ def _read_view(scan_dir: str, path: str, index: int, entry, depth_unit: str) -> 
     rgb = None if rgb is None else np.ascontiguousarray(rgb[..., :3]).astype(np.uint8)
     return ScanView(name, rgb, depth, labels.astype(np.uint8),
                     intrinsics, pose)
+
+
+def _millimetres(view: ScanView) -> np.ndarray:
+    """The view's depth as 16-bit millimetres (H, W); InputError beyond 65.535 m."""
+    millimetres = np.round(view.depth.astype(np.float64) * 1000.0)
+    if millimetres.max(initial=0) > 65535:
+        raise InputError(f"view {view.name}: depth beyond 65.535 m cannot be stored as 16-bit millimetres")
+    return millimetres.astype(np.uint16)
+
+
+def _camera(entry: dict, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """A view entry's intrinsics (3, 3) and world-from-camera pose (4, 4), checked: finite,
+    positive focal lengths, a rigid pose."""
+    intrinsics = _matrix(entry.get("intrinsics"), (3, 3), where, "intrinsics")
+    pose = _matrix(entry.get("world_from_camera"), (4, 4), where, "world_from_camera")
+    rotation = pose[:3, :3]
+    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4) or not np.allclose(pose[3], [0, 0, 0, 1]) \
+            or np.linalg.det(rotation) < 0:
+        raise InputError(f"{where}: world_from_camera is not a rigid transform (rotation and translation)")
+    if not (intrinsics[0, 0] > 0 and intrinsics[1, 1] > 0):
+        raise InputError(f"{where}: intrinsics need positive focal lengths")
+    return intrinsics, pose
 
 
 def _matrix(value, shape, where: str, key: str) -> np.ndarray:
@@ -245,10 +258,7 @@ def dataset_values(scan: Scan) -> dict:
     cameras' JSON). InputError for depth beyond the 16-bit millimetre range."""
     values, cameras = {}, []
     for view in scan.views:
-        millimetres = np.round(view.depth.astype(np.float64) * 1000.0)
-        if millimetres.max(initial=0) > 65535:
-            raise InputError(f"view {view.name}: depth beyond 65.535 m cannot be stored as 16-bit millimetres")
-        millimetres = millimetres.astype(np.uint16)
+        millimetres = _millimetres(view)
         values[SCAN_FEATURE_PREFIX + view.name] = np.stack(
             [(millimetres >> 8).astype(np.uint8), (millimetres & 255).astype(np.uint8), view.labels], axis=-1)
         height, width = view.depth.shape
@@ -283,9 +293,7 @@ def from_dataset_row(row: dict, where: str) -> Scan:
                              f"{entry['width']}x{entry['height']}")
         millimetres = packed[..., 0].astype(np.uint16) << 8 | packed[..., 1].astype(np.uint16)
         views.append(ScanView(str(entry["name"]), None, millimetres.astype(np.float32) / 1000.0,
-                              packed[..., 2].astype(np.uint8),
-                              _matrix(entry.get("intrinsics"), (3, 3), view_where, "intrinsics"),
-                              _matrix(entry.get("world_from_camera"), (4, 4), view_where, "world_from_camera")))
+                              packed[..., 2].astype(np.uint8), *_camera(entry, view_where)))
     if not views:
         raise InputError(f"{where}: {CAMERAS_FEATURE} names no views")
     return Scan(tuple(views), tuple(meta.get("objects", [])))

@@ -246,7 +246,7 @@ async fn run_job(
         (status = 404, description = "Unknown model or task.", body = ErrorResponse),
         (status = 413, description = "The body is too large.", body = ErrorResponse),
         (status = 415, description = "Not multipart/form-data.", body = ErrorResponse),
-        (status = 422, description = "The model predicts from images, not scans.", body = ErrorResponse),
+        (status = 422, description = "The model predicts from images, not scans; or a prompt was sent for a model without prompt roles.", body = ErrorResponse),
         (status = 500, description = "Internal failure: the message gives the request id.", body = ErrorResponse),
         (status = 503, description = "Too many requests are waiting; retry after the Retry-After header's seconds.", body = ErrorResponse,
             headers(("Retry-After" = u64, description = "Seconds to wait before retrying."))),

@@ -146,10 +146,12 @@ def predict_scan(model_dir: str, scan_dir: str, seed: int = 0, figure: str | Non
     read = time.perf_counter()
     result = model.predict_scan(scan, seed)
     fit = result["fit"]
-    box_centre, half = np.asarray(c.box_centre), c.box_half
+    from cnfmp.core.occupancy import SceneBox
+
+    box = SceneBox.of(c)
     slots = [{"slot": k + 1, "name": scan.objects[k] if k < len(scan.objects) else c.object_names[k], "present": True,
               "weights": fit.weights[k].double().numpy().round(5).tolist(), "fit_loss": round(fit.losses[k], 6),
-              "centre_m": (box_centre + half * fit.centres[k].double().numpy()).round(4).tolist(),
+              "centre_m": box.to_world(fit.centres[k].double().numpy()).round(4).tolist(),
               "turn_deg": round(float(np.degrees(float(fit.turns[k]))), 2)} for k in range(c.num_objects)]
     timings = {"load_model": 1000 * (loaded - started), "decode_inputs": 1000 * (read - loaded),
                "infer_latents": 1000 * result["seconds"]["infer"], "decode_trajectory": 1000 * result["seconds"]["decode"],
@@ -168,6 +170,7 @@ def segmented_scan(config, scan, prompt: str, backend_name: str = "auto", weight
     model has no prompt roles, a view has no RGB image, or no view grounds the prompt."""
     import dataclasses
 
+    from cnfmp.scan import Scan
     from cnfmp.segmenter import api as segmenter_api
     from cnfmp.segmenter import phrases
 
@@ -190,7 +193,7 @@ def segmented_scan(config, scan, prompt: str, backend_name: str = "auto", weight
     if len(failures) == len(views):
         raise InputError(f"the prompt {prompt!r} was grounded in no view of the scan ({'; '.join(failures)})")
     names = tuple(scan.objects) or tuple(config.object_names)
-    return type(scan)(tuple(views), names)
+    return Scan(tuple(views), names)
 
 
 def _decoded_scene(config, image_png: bytes, masks_png: bytes, objects: list[str]) -> tuple:

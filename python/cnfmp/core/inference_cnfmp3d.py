@@ -133,8 +133,7 @@ class Predictor3d:
         object slot has no scan points inside the scene box."""
         c, model = self.config, self.model
         points = occupancy.scan_points(scan, self.box, c.num_objects, tuple(scan.objects) or tuple(c.object_names))
-        anchors = torch.from_numpy(np.stack([self.box.to_box(points.of_object(k)).mean(axis=0)
-                                             for k in range(c.num_objects)]).astype(np.float32))
+        anchors = torch.from_numpy(points.anchors(self.box, c.num_objects))
         # Numpy, not tensors, in the jobs, and only what the fit reads (no colour, the points
         # a sample can reach): they may travel to a helper process by pickle.
         depth_only = Scan(tuple(dataclasses.replace(view, rgb=None) for view in scan.views), scan.objects)

@@ -61,6 +61,10 @@ class ScanPoints:
         """The points of object slot `slot` (label slot + 1): (M_k, 3)."""
         return self.points[self.labels == slot + 1]
 
+    def anchors(self, box: SceneBox, num_objects: int) -> np.ndarray:
+        """Each object's anchor, the centroid of its points: (N, 3) float32 box coordinates."""
+        return np.stack([box.to_box(self.of_object(k)).mean(axis=0) for k in range(num_objects)]).astype(np.float32)
+
     def around_object(self, slot: int, reach_m: float) -> "ScanPoints":
         """The points within `reach_m` of object `slot`'s bounding box (every point a sample
         near the object can take its coarse label from)."""

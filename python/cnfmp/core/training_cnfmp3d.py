@@ -67,14 +67,14 @@ class ScanSamples:
                                                 config.surface_jitter_m, rng))
             kinds.append(box.to_world(rng.uniform(-1.0, 1.0, (POOL_FACTOR * config.uniform_samples, 3))))
             pools.append([occupancy.label_samples(w, scan, points, box, config) for w in kinds])
-            anchors.append([box.to_box(points.of_object(k)).mean(axis=0) for k in range(n)])
+            anchors.append(points.anchors(box, n))
         self.counts = [config.samples_per_object] * n + [config.background_samples, config.uniform_samples]
         stack = lambda kind, field: torch.from_numpy(np.stack([getattr(p[kind], field) for p in pools]))  # noqa: E731
         #: Per kind: points (B, S, 3), occupied (B, S), known (B, S), coarse (B, S).
         self.kinds = [{field: stack(kind, field) for field in ("points", "occupied", "known", "coarse")}
                       for kind in range(n + 2)]
         #: (B, N, 3) box coordinates: each object's scan-point centroid.
-        self.anchors = torch.from_numpy(np.asarray(anchors, dtype=np.float32))
+        self.anchors = torch.from_numpy(np.stack(anchors))
 
     def __len__(self) -> int:
         return self.anchors.shape[0]
