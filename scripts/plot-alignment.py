@@ -48,12 +48,14 @@ def main() -> None:
     parser.add_argument("--camera", default=None)
     args = parser.parse_args()
     demos = load_demonstrations(args.dataset, RecordingOptions(camera=args.camera))
-    aligned, report = align_demonstrations(demos.trajectories, demos.fps)
+    aligned, report = align_demonstrations(demos.trajectories, demos.fps, poses=not demos.joint_names)
     duration = max(max(len(t) for t in demos.trajectories), max(len(t) for t in aligned)) / demos.fps
-    heights = np.concatenate([t[:, 2] for t in demos.trajectories])
+    # The second row: the height, or for a joint-space recording its second joint (a lift).
+    second, label = (1, demos.joint_names[1 % len(demos.joint_names)]) if demos.joint_names else (2, "height z (m)")
+    values = np.concatenate([t[:, second] for t in demos.trajectories])
     marks = report.groups[report.majority]["event_times_s"]
     rows = []
-    for name, column, low, high in (("gripper", 7, -0.05, 1.05), ("height z (m)", 2, heights.min(), heights.max())):
+    for name, column, low, high in (("gripper", -1, -0.05, 1.05), (label, second, values.min(), values.max())):
         rows.append(np.concatenate([
             panel([t[:, column] for t in demos.trajectories], demos.fps, duration, low, high, f"{name}, as recorded", []),
             panel([t[:, column] for t in aligned], demos.fps, duration, low, high, f"{name}, aligned", marks)], axis=1))

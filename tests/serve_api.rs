@@ -453,12 +453,14 @@ fn predict_with_masks(model: &Path, scene: &RenderedScene) -> Vec<Value> {
     trajectory["frames"].as_array().unwrap().clone()
 }
 
-/// The same frames up to the wire's rounding (6 decimals).
+/// The same frames (poses or joints) up to the wire's rounding (6 decimals).
 fn assert_same_frames(http: &Value, cli: &[Value], what: &str) {
     let http = http.as_array().unwrap();
     assert_eq!(http.len(), cli.len(), "{what}: frame counts differ");
     for (a, b) in http.iter().zip(cli) {
-        for key in ["t", "position", "orientation", "gripper"] {
+        let keys: Vec<&String> = a.as_object().unwrap().keys().collect();
+        assert_eq!(keys, b.as_object().unwrap().keys().collect::<Vec<_>>(), "{what}: frame fields differ");
+        for key in keys {
             let numbers = |v: &Value| match v {
                 Value::Array(items) => items.iter().map(|x| x.as_f64().unwrap()).collect::<Vec<_>>(),
                 other => vec![other.as_f64().unwrap()],
@@ -629,4 +631,37 @@ fn a_model_of_objects_outside_the_vocabulary_is_served_from_masks_and_refuses_pr
     for needed in ["block, tray", "masks", "objects", "clipseg"] {
         assert!(message.contains(needed), "the 422 does not say {needed:?}: {message}");
     }
+}
+
+#[test]
+fn a_joint_space_model_answers_in_its_joints_and_is_evaluated_through_the_arm() {
+    let dir = tempfile::tempdir().unwrap();
+    let dataset = dir.path().join("joints");
+    let generated = cnfmp(&["dataset", "generate", "--task", "wall_avoidance", "--episodes", "2", "--seed", "70", "--out", arg(&dataset), "--joint-space"]);
+    assert!(generated.status.success(), "{}", common::stderr(&generated));
+    let models = dir.path().join("models");
+    let model = models.join("wall_joints");
+    let config = dir.path().join("tiny.json");
+    std::fs::write(&config, common::TINY_CONFIG).unwrap();
+    let trained = cnfmp(&["train", "--dataset", arg(&dataset), "--out", arg(&model), "--config", arg(&config), "--steps", "10"]);
+    assert!(trained.status.success(), "{}", common::stderr(&trained));
+
+    let scene = render("wall_avoidance", 1_000_000, &dir.path().join("scene"));
+    let cli = predict_with_masks(&model, &scene);
+    assert_eq!(cli[0]["joints"].as_array().map(Vec::len), Some(6), "{}", cli[0]);
+    let server = Server::start_with(&models, &[]);
+    let objects = serde_json::to_string(&scene.objects).unwrap();
+    let (content_type, body) = masks_form(&scene.image, &scene.masks, &[("objects", &objects)]);
+    let answer = post(&server.url("/v1/trajectories"), &content_type, &body);
+    assert_eq!(answer.status, 200, "{}", answer.body);
+    assert_eq!(answer.body["joint_names"][0], "shoulder_pan.pos", "{}", answer.body);
+    assert_same_frames(&answer.body["frames"], &cli, "joint-space model over HTTP");
+
+    // The simulator executes the joints through its arm's forward kinematics.
+    let results = dir.path().join("eval.json");
+    let evaluated = cnfmp(&["eval", "--model", arg(&model), "--task", "wall_avoidance", "--episodes", "2", "--json", arg(&results), "--helper-processes", "0"]);
+    assert!(evaluated.status.success(), "{}", common::stderr(&evaluated));
+    let summary: Value = serde_json::from_slice(&std::fs::read(&results).unwrap()).unwrap();
+    let med = summary["med_cm"].as_f64().unwrap_or(f64::NAN);
+    assert!(med.is_finite() && med > 0.0, "{summary}");
 }

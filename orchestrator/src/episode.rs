@@ -5,6 +5,7 @@
 
 use std::path::PathBuf;
 
+use segmenter_bridge::ndarray::{Array1, Array2};
 use segmenter_bridge::{Bridge, BridgeError, SceneInfo};
 use serde_json::Map;
 use tempfile::TempDir;
@@ -13,6 +14,7 @@ use crate::failure::Failure;
 use crate::files::read_bytes;
 use crate::trajectory::Trajectory;
 use crate::trajectory::compare::mean_euclidean_distance_cm;
+use crate::trajectory::joints::Predicted;
 use crate::trajectory::resample::{ResampleTarget, resample};
 
 /// The simulator as evaluations use it: rendered scenes go to a scratch directory that
@@ -63,6 +65,25 @@ impl<'a> Simulator<'a> {
             info,
             scan: scan.then(|| dir.join("scan")),
         })
+    }
+
+    /// The tool path of a prediction: its poses, or for a joint-space model the poses the
+    /// simulator's arm puts the gripper at (forward kinematics, used only for this check).
+    /// Joints that are not the arm's are bad input.
+    pub fn tool_path(&self, predicted: Predicted) -> Result<Trajectory, Failure> {
+        let joints = match predicted {
+            Predicted::Pose(trajectory) => return Ok(trajectory),
+            Predicted::Joints(joints) => joints,
+        };
+        let n = joints.frames.len();
+        let values: Vec<f64> = joints.frames.iter().flat_map(|frame| frame.joints.iter().copied()).collect();
+        let angles = Array2::from_shape_vec((n, joints.joint_names.len()), values)
+            .map_err(|err| Failure::Environment(format!("joint values: {err}")))?;
+        let t = Array1::from_iter(joints.frames.iter().map(|frame| frame.t));
+        let gripper = Array1::from_iter(joints.frames.iter().map(|frame| frame.gripper));
+        let arrays = self.bridge.sim_forward_kinematics(joints.joint_names.clone(), joints.fps, t, angles, gripper)?;
+        Trajectory::from_arrays(&arrays, joints.metadata)
+            .map_err(|err| Failure::Environment(format!("the arm's forward kinematics gave an invalid trajectory: {err}")))
     }
 
     /// `trajectory` resampled at the control rate, as it is executed and compared.

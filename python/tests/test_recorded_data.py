@@ -97,22 +97,22 @@ def test_motion_layouts_are_read_from_names():
     assert euler.rotation == "euler" and euler.position == (4, 5, 6) and euler.gripper == 0
     quat = recorded.motion_layout("action", ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper"])
     assert quat.rotation_indices == (6, 3, 4, 5)
-    poses, scale = recorded.to_poses([np.array([[0, 0, 0, 0, 0, 0, 1, 20.0], [0, 0, 0, 0, 0, 0, 1, 80.0]])], quat)
+    poses, scale = recorded.to_motion([np.array([[0, 0, 0, 0, 0, 0, 1, 20.0], [0, 0, 0, 0, 0, 0, 1, 80.0]])], quat)
     np.testing.assert_allclose(poses[0][:, 3:7], [[1, 0, 0, 0]] * 2)
     assert scale == (20.0, 80.0) and poses[0][:, 7].tolist() == [0.0, 1.0]
     euler_values = np.array([[0.5, 0, 0, np.pi / 2, 1, 2, 3]] * 2)
-    euler_pose, _ = recorded.to_poses([euler_values], euler)
+    euler_pose, _ = recorded.to_motion([euler_values], euler)
     np.testing.assert_allclose(euler_pose[0][0, 3:7], [np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)], atol=1e-9)
     # And back: the recording's own form, dimension by dimension.
-    names, back = recorded.from_poses(euler_pose[0], euler, None)
+    names, back = recorded.from_motion(euler_pose[0], euler, None)
     assert names == ["gripper", "roll", "pitch", "yaw", "x", "y", "z"]
     np.testing.assert_allclose(back, euler_values, atol=1e-9)
-    names, back = recorded.from_poses(poses[0], quat, scale)
+    names, back = recorded.from_motion(poses[0], quat, scale)
     assert names == ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper"] and back[:, 7].tolist() == [20.0, 80.0]
 
 
 @pytest.mark.parametrize("names, message", [
-    (["shoulder_pan.pos", "shoulder_lift.pos", "elbow.pos", "wrist.pos", "gripper.pos"], "joint-space"),
+    (["x", "y", "elbow.pos", "wrist.pos", "gripper.pos"], "neither an end-effector pose nor joint space: no z"),
     (["x", "y", "z", "rx", "ry", "rz"], "exactly one dimension named like 'gripper'"),
     (None, "does not name its dimensions"),
 ])
@@ -295,7 +295,7 @@ def test_bad_recordings_get_clear_errors_and_leave_nothing(recording, tmp_path):
         annotate.annotate(str(tmp_path / "silent"), out, progress=False)
     episode = [np.array([[0, 0, 0.1 * k, 0, 0, 0, 40.0] for k in range(3)])]
     with pytest.raises(InputError, match="stays at 40 in every episode"):
-        recorded.to_poses(episode, recorded.motion_layout("action", MOTION_NAMES))
+        recorded.to_motion(episode, recorded.motion_layout("action", MOTION_NAMES))
     assert not glob.glob(out + "*")
 
 

@@ -57,8 +57,9 @@ pub struct InspectedEpisode {
     pub index: u64,
     /// Frame times (s).
     pub timestamps: Vec<f64>,
-    /// Per frame `[x, y, z, qw, qx, qy, qz, gripper]`.
-    pub state: Vec<[f64; 8]>,
+    /// Per frame `[x, y, z, qw, qx, qy, qz, gripper]`, or for a joint-space recording the
+    /// joint values in `DatasetInspection::joint_names` order, then the gripper.
+    pub state: Vec<Vec<f64>>,
 }
 
 /// What lerobot's reader says about a dataset (`cnfmp.data.lerobot_io.inspect`).
@@ -66,6 +67,9 @@ pub struct InspectedEpisode {
 pub struct DatasetInspection {
     pub checks: Vec<DatasetCheck>,
     pub fps: f64,
+    /// The joints of a joint-space recording; `None` for end-effector poses.
+    #[serde(default)]
+    pub joint_names: Option<Vec<String>>,
     pub episodes: Vec<InspectedEpisode>,
 }
 

@@ -193,6 +193,29 @@ impl Bridge {
         })
     }
 
+    /// The tool poses of a joint-space trajectory of the simulator's arm
+    /// (`cnfmp.sim.api.forward_kinematics`): `t` (T,) s, `joints` (T, J) rad named
+    /// `joint_names`, `gripper` (T,). Joints that are not the arm's are
+    /// [`BridgeError::InvalidInput`].
+    pub fn sim_forward_kinematics(
+        &self,
+        joint_names: Vec<String>,
+        fps: f64,
+        t: Array1<f64>,
+        joints: Array2<f64>,
+        gripper: Array1<f64>,
+    ) -> Result<TrajectoryArrays, BridgeError> {
+        self.call_dict(
+            "cnfmp.sim.api",
+            "forward_kinematics",
+            move |py| {
+                Ok(kwargs!(py, joint_names = joint_names, fps = fps, t = t.into_pyarray(py),
+                           joints = joints.into_pyarray(py), gripper = gripper.into_pyarray(py)))
+            },
+            |dict| TrajectoryArrays::from_dict(dict),
+        )
+    }
+
     /// Executes `trajectory` (sampled at [`Bridge::sim_control_hz`]) in the (task, seed)
     /// scene by physics and returns the judge's verdict. A frame outside the workspace is
     /// [`BridgeError::InvalidInput`].
@@ -238,10 +261,23 @@ impl Bridge {
         })
     }
 
-    pub fn dataset_generate(&self, task: &str, episodes: u64, seed: u64, out: &Path, workers: u32, scan: Option<bool>) -> Result<DatasetReport, BridgeError> {
+    /// Writes a dataset of expert demonstrations (`cnfmp.data.generate.generate_dataset`):
+    /// `scan` None for the task's default, `joint_space` for the motion as the simulator
+    /// arm's joint angles instead of tool poses.
+    #[allow(clippy::too_many_arguments)]
+    pub fn dataset_generate(
+        &self,
+        task: &str,
+        episodes: u64,
+        seed: u64,
+        out: &Path,
+        workers: u32,
+        scan: Option<bool>,
+        joint_space: bool,
+    ) -> Result<DatasetReport, BridgeError> {
         let (task, out) = (task.to_owned(), out.to_path_buf());
         self.call_json("cnfmp.data.generate", "generate_dataset", move |py| {
-            Ok(kwargs!(py, task = task, episodes = episodes, seed = seed, out_dir = out, workers = workers, scan = scan))
+            Ok(kwargs!(py, task = task, episodes = episodes, seed = seed, out_dir = out, workers = workers, scan = scan, joint_space = joint_space))
         })
     }
 }

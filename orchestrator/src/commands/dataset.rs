@@ -40,6 +40,11 @@ pub enum DatasetCommand {
         /// Do not record scans, even for a task that records them by default.
         #[arg(long)]
         no_scan: bool,
+        /// Record the motion as the joint angles of the simulator's six-joint arm (inverse
+        /// kinematics of the expert's tool poses; names shoulder_pan.pos ... wrist_twist.pos,
+        /// gripper.pos), as a lab's arm records it, instead of tool poses.
+        #[arg(long)]
+        joint_space: bool,
     },
     /// Convert recorded demonstrations into a LeRobot v3.0 dataset (or a dataset back into
     /// raw episode folders). Resumable: rerun the same command after an interruption.
@@ -108,12 +113,12 @@ pub enum DatasetCommand {
 
 pub fn run(command: DatasetCommand) -> Result<(), Failure> {
     match command {
-        DatasetCommand::Generate { task, episodes, seed, out, workers, scan, no_scan } => {
+        DatasetCommand::Generate { task, episodes, seed, out, workers, scan, no_scan, joint_space } => {
             if out.exists() {
                 return Err(Failure::BadInput(format!("{} already exists; datasets are never overwritten, choose a new --out", out.display())));
             }
             let scan = if scan { Some(true) } else if no_scan { Some(false) } else { None };
-            let report = Bridge::start_default()?.dataset_generate(&task, episodes, seed, &out, workers, scan)?;
+            let report = Bridge::start_default()?.dataset_generate(&task, episodes, seed, &out, workers, scan, joint_space)?;
             print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))?;
         }
         DatasetCommand::Convert { from, out, to, fps, workers, strict } => {

@@ -283,7 +283,12 @@ fn run_episode(
         Err(other) => return Err(other.into()),
     };
     let latency_ms = elapsed_ms();
-    let predicted = simulator.at_control_rate(&trajectory_of(&prediction)?)?;
+    let tool_path = match simulator.tool_path(trajectory_of(&prediction)?) {
+        Ok(path) => path,
+        Err(Failure::BadInput(message)) => return Ok(Episode::unpredicted(seed, format!("not executable: {message}"), latency_ms)),
+        Err(other) => return Err(other),
+    };
+    let predicted = simulator.at_control_rate(&tool_path)?;
     let verdict = simulator.execute(&args.task, seed, &predicted)?;
     Ok(Episode {
         seed,

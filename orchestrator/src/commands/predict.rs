@@ -19,7 +19,7 @@ use crate::model_dir::{load_model, model_task};
 use crate::failure::Failure;
 use crate::files::{require_new_or_empty_dir, write_atomically};
 use crate::scene_masks::{self, CoarseMasks};
-use crate::trajectory::Trajectory;
+use crate::trajectory::joints::Predicted;
 
 #[derive(Debug, Args)]
 pub struct PredictArgs {
@@ -101,7 +101,7 @@ fn describe_objects(objects: &[ObjectEstimate]) -> String {
 /// One scene's prediction: the validated trajectory (with what the segmenter found in its
 /// metadata when a prompt was used) and the model's report.
 struct PredictedScene {
-    trajectory: Trajectory,
+    trajectory: Predicted,
     prediction: Prediction,
     segmentation: Option<Segmentation>,
 }
@@ -126,7 +126,7 @@ fn predict_scene(bridge: &Bridge, model: &Path, scene: &SceneInput, backend: &Ba
     let mut trajectory = trajectory_of(&prediction)?;
     if let Some(found) = &segmentation {
         let document = serde_json::to_value(&found.document).expect("segmentation serialises");
-        trajectory.metadata.insert("segmentation".into(), document);
+        trajectory.metadata_mut().insert("segmentation".into(), document);
     }
     Ok(PredictedScene { trajectory, prediction, segmentation })
 }
@@ -163,8 +163,8 @@ pub fn predict(args: PredictArgs) -> Result<(), Failure> {
     eprintln!(
         "{}: {} frames at {} Hz, {:.2} s; objects: {}; inference {:.0} ms",
         args.out.display(),
-        done.trajectory.frames.len(),
-        done.trajectory.fps,
+        done.trajectory.frame_count(),
+        done.trajectory.fps(),
         done.trajectory.duration(),
         describe_objects(&done.prediction.objects),
         inference_ms(&done.prediction)
@@ -196,8 +196,8 @@ fn predict_scan(model: &Path, scan: &Path, figure: Option<&Path>, labelling: Opt
     eprintln!(
         "{}: {} frames at {} Hz, {:.2} s; objects: {}; inference {:.0} ms",
         out.display(),
-        trajectory.frames.len(),
-        trajectory.fps,
+        trajectory.frame_count(),
+        trajectory.fps(),
         trajectory.duration(),
         objects.join(", "),
         inference_ms(&prediction)
@@ -265,7 +265,7 @@ fn predict_scenes(model: &Path, scenes: &Path, backend: &BackendArgs, out: &Path
                     predicted: true,
                     error: None,
                     latency_ms: o.latency_ms,
-                    frames: Some(done.trajectory.frames.len()),
+                    frames: Some(done.trajectory.frame_count()),
                     objects: done.prediction.objects,
                     timings_ms: done.prediction.timings_ms,
                 },

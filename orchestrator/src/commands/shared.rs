@@ -4,7 +4,7 @@
 use segmenter_bridge::Prediction;
 
 use crate::failure::Failure;
-use crate::trajectory::Trajectory;
+use crate::trajectory::joints::Predicted;
 
 /// The command line as typed (recorded in model cards).
 pub(crate) fn command_line() -> String {
@@ -14,10 +14,10 @@ pub(crate) fn command_line() -> String {
         .join(" ")
 }
 
-/// The prediction's trajectory, validated by the Rust trajectory code (the diagnostics stay
-/// as metadata).
-pub(crate) fn trajectory_of(prediction: &Prediction) -> Result<Trajectory, Failure> {
-    Trajectory::from_json_str(&prediction.json).map_err(|err| {
+/// The prediction's trajectory (end-effector poses, or joint values for a joint-space model),
+/// validated by the Rust trajectory code (the diagnostics stay as metadata).
+pub(crate) fn trajectory_of(prediction: &Prediction) -> Result<Predicted, Failure> {
+    Predicted::from_json_str(&prediction.json).map_err(|err| {
         Failure::Environment(format!("the model produced an invalid trajectory: {err}"))
     })
 }

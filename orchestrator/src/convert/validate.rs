@@ -6,13 +6,14 @@
 use std::path::Path;
 use std::process::Command;
 
-use segmenter_bridge::{Bridge, DatasetCheck, TrajectoryArrays};
+use segmenter_bridge::{Bridge, DatasetCheck, InspectedEpisode, TrajectoryArrays};
 use segmenter_bridge::ndarray::{Array1, Array2};
 use serde::Serialize;
 use serde_json::{Map, Value};
 
 use crate::failure::Failure;
-use crate::trajectory::Trajectory;
+use crate::trajectory::joints::{JointFrame, JointTrajectory};
+use crate::trajectory::{Trajectory, TrajectoryError};
 
 /// lerobot-doctor checks we run: all but `anomalies`, which crashes on 2-D features such as
 /// our masks (facts.md).
@@ -36,46 +37,74 @@ pub fn validate(dir: &Path) -> Result<ValidationReport, Failure> {
         return Err(Failure::BadInput(format!("{} is not a LeRobot dataset (no meta/info.json)", dir.display())));
     }
     let bridge = Bridge::start_default()?;
-    let inspection = bridge.inspect_dataset(dir)?;
-    let mut checks = inspection.checks;
+    let mut inspection = bridge.inspect_dataset(dir)?;
+    let mut checks = std::mem::take(&mut inspection.checks);
     if !inspection.episodes.is_empty() {
-        checks.push(trajectory_check(inspection.fps, &inspection.episodes));
+        checks.push(trajectory_check(&inspection));
     }
     checks.extend(doctor_checks(&bridge.prefix().join("bin").join("python"), dir));
     Ok(ValidationReport { dataset: dir.display().to_string(), passed: checks.iter().all(|check| check.ok), checks })
 }
 
-/// Every episode's `observation.state` must be a valid trajectory (finite, unit quaternions,
-/// gripper in [0, 1]) on the dataset's frame grid.
-fn trajectory_check(fps: f64, episodes: &[segmenter_bridge::InspectedEpisode]) -> DatasetCheck {
+/// Every episode's `observation.state` must be a valid trajectory on the dataset's frame grid:
+/// finite values and gripper in [0, 1]; unit quaternions for poses, one value per named joint
+/// for a joint-space recording.
+fn trajectory_check(inspection: &segmenter_bridge::DatasetInspection) -> DatasetCheck {
+    let fps = inspection.fps;
     let mut problems = Vec::new();
     let mut frames = 0;
-    for episode in episodes {
-        let n = episode.state.len();
-        frames += n;
-        let column = |range: std::ops::Range<usize>| Array2::from_shape_fn((n, range.len()), |(i, j)| episode.state[i][range.start + j]);
-        let arrays = TrajectoryArrays {
-            fps,
-            t: Array1::from(episode.timestamps.clone()),
-            position: column(0..3),
-            orientation: column(3..7),
-            gripper: Array1::from_iter(episode.state.iter().map(|s| s[7])),
+    for episode in &inspection.episodes {
+        frames += episode.state.len();
+        let checked = match &inspection.joint_names {
+            Some(names) => joint_trajectory(fps, names, episode).validate(),
+            None => pose_arrays(fps, episode).and_then(|arrays| Trajectory::from_arrays(&arrays, Map::new()).map(|_| ())),
         };
-        if let Err(err) = Trajectory::from_arrays(&arrays, Map::new()) {
+        if let Err(err) = checked {
             problems.push(format!("episode {}: {err}", episode.index));
-        } else if let Some(k) = (0..n).find(|&k| (episode.timestamps[k] - k as f64 / fps).abs() > TIMESTAMP_TOLERANCE) {
+        } else if let Some(k) = (0..episode.state.len()).find(|&k| (episode.timestamps[k] - k as f64 / fps).abs() > TIMESTAMP_TOLERANCE) {
             problems.push(format!("episode {}: frame {k} at {} s, not on the {fps} fps grid", episode.index, episode.timestamps[k]));
         }
     }
+    let form = if inspection.joint_names.is_some() { "finite joint values" } else { "finite poses, unit quaternions" };
     DatasetCheck {
         name: "trajectories".into(),
         ok: problems.is_empty(),
         detail: if problems.is_empty() {
-            format!("{} episodes, {frames} frames: finite poses, unit quaternions, gripper in [0, 1], timestamps on the fps grid", episodes.len())
+            format!("{} episodes, {frames} frames: {form}, gripper in [0, 1], timestamps on the fps grid", inspection.episodes.len())
         } else {
             format!("{} bad episode(s): {}", problems.len(), problems.iter().take(5).cloned().collect::<Vec<_>>().join("; "))
         },
     }
+}
+
+/// An episode's `[x y z qw qx qy qz gripper]` rows as trajectory arrays.
+fn pose_arrays(fps: f64, episode: &InspectedEpisode) -> Result<TrajectoryArrays, TrajectoryError> {
+    let n = episode.state.len();
+    if let Some(i) = episode.state.iter().position(|row| row.len() != 8) {
+        return Err(TrajectoryError::new(format!("frames[{i}]"), format!("has {} values, not x y z qw qx qy qz gripper", episode.state[i].len())));
+    }
+    let column = |range: std::ops::Range<usize>| Array2::from_shape_fn((n, range.len()), |(i, j)| episode.state[i][range.start + j]);
+    Ok(TrajectoryArrays {
+        fps,
+        t: Array1::from(episode.timestamps.clone()),
+        position: column(0..3),
+        orientation: column(3..7),
+        gripper: Array1::from_iter(episode.state.iter().map(|s| s[7])),
+    })
+}
+
+/// An episode's joint rows (joints then gripper) as a joint-space trajectory.
+fn joint_trajectory(fps: f64, names: &[String], episode: &InspectedEpisode) -> JointTrajectory {
+    let frames = episode
+        .state
+        .iter()
+        .zip(&episode.timestamps)
+        .map(|(row, &t)| {
+            let (joints, gripper) = row.split_at(row.len().saturating_sub(1));
+            JointFrame { t, joints: joints.to_vec(), gripper: gripper.first().copied().unwrap_or(f64::NAN) }
+        })
+        .collect();
+    JointTrajectory { fps, joint_names: names.to_vec(), frames, metadata: Map::new() }
 }
 
 /// lerobot-doctor's checks as ours: FAIL fails, WARN passes with the warning shown.

@@ -109,6 +109,26 @@ pub struct Frame {
     pub gripper: f64,
 }
 
+/// One time step of a joint-space model's trajectory.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct JointFrame {
+    /// Time since the start (s).
+    pub t: f64,
+    /// One value per name of the answer's `joint_names`, in the recording's units (e.g. rad).
+    pub joints: Vec<f64>,
+    /// Gripper opening in [0, 1], 1 = open.
+    pub gripper: f64,
+}
+
+/// The trajectory's frames: end-effector poses, or joint values for a model trained on a
+/// joint-space recording (the answer then names the joints in `joint_names`).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(untagged)]
+pub enum Frames {
+    Pose(Vec<Frame>),
+    Joints(Vec<JointFrame>),
+}
+
 /// The model that answered.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct ModelRef {
@@ -179,7 +199,11 @@ pub struct StageTimings {
 pub struct TrajectoryResponse {
     /// Nominal sampling rate (Hz).
     pub fps: f64,
-    pub frames: Vec<Frame>,
+    /// For a joint-space model: the joints of each frame's `joints`, as its recording names
+    /// them; absent for an end-effector model.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub joint_names: Option<Vec<String>>,
+    pub frames: Frames,
     pub model: ModelRef,
     /// The request's prompt, if it had one.
     pub prompt: Option<String>,

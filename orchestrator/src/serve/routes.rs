@@ -24,7 +24,7 @@ use super::pipeline::{FoundObjects, Pipeline, PipelineJob, PipelineOutput, Scene
 use segmenter_bridge::Prediction;
 use super::queue::Refused;
 use crate::scene_masks::{self, CoarseMasks, MaskError};
-use crate::trajectory::Trajectory;
+use crate::trajectory::joints::Predicted;
 
 /// What the server accepts; requests beyond get a 4xx before any work is queued.
 #[derive(Debug, Clone)]
@@ -483,21 +483,31 @@ fn build_response(
 ) -> Result<TrajectoryResponse, ApiError> {
     let PipelineOutput { found, prediction, .. } = output;
     // The Rust trajectory checks (unit quaternions, increasing time, ...) guard the wire.
-    let trajectory = Trajectory::from_json_str(&prediction.json)
+    let trajectory = Predicted::from_json_str(&prediction.json)
         .map_err(|err| ApiError::internal(format!("the model produced an invalid trajectory: {err}")))?;
-    let frames = trajectory
-        .frames
-        .iter()
-        .map(|frame| {
-            let (p, q) = (frame.pose.position, frame.pose.orientation);
-            Frame {
+    let fps = trajectory.fps();
+    let (joint_names, frames) = match trajectory {
+        Predicted::Pose(trajectory) => {
+            let frames = trajectory.frames.iter().map(|frame| {
+                let (p, q) = (frame.pose.position, frame.pose.orientation);
+                Frame {
+                    t: micro(frame.t),
+                    position: [p.x, p.y, p.z].map(micro),
+                    orientation: [q.w, q.i, q.j, q.k].map(micro),
+                    gripper: micro(frame.gripper),
+                }
+            });
+            (None, Frames::Pose(frames.collect()))
+        }
+        Predicted::Joints(trajectory) => {
+            let frames = trajectory.frames.iter().map(|frame| JointFrame {
                 t: micro(frame.t),
-                position: [p.x, p.y, p.z].map(micro),
-                orientation: [q.w, q.i, q.j, q.k].map(micro),
+                joints: frame.joints.iter().copied().map(micro).collect(),
                 gripper: micro(frame.gripper),
-            }
-        })
-        .collect();
+            });
+            (Some(trajectory.joint_names), Frames::Joints(frames.collect()))
+        }
+    };
     let objects = detected_objects(served, &found, &prediction);
     let segmenter = match &found {
         FoundObjects::Segmented(found) => Some(found.document.backend.clone()),
@@ -510,7 +520,8 @@ fn build_response(
     };
     let masks_png_base64 = masks_png.filter(|_| include_masks).map(|png| base64::engine::general_purpose::STANDARD.encode(png));
     Ok(TrajectoryResponse {
-        fps: trajectory.fps,
+        fps,
+        joint_names,
         frames,
         model: ModelRef {
             name: served.summary.name.clone(),
@@ -839,7 +850,7 @@ async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
     ),
     paths(create_trajectory, create_scan_trajectory, health, list_models, metrics, openapi_json),
     components(schemas(
-        TrajectoryJsonRequest, TrajectoryForm, ScanTrajectoryForm, TrajectoryResponse, Frame, ModelRef, DetectedObject, Confidence,
+        TrajectoryJsonRequest, TrajectoryForm, ScanTrajectoryForm, TrajectoryResponse, Frames, Frame, JointFrame, ModelRef, DetectedObject, Confidence,
         StageTimings, RecordedFrames, ModelList, ModelSummary, Health, ErrorResponse, ErrorDetail
     ))
 )]

@@ -6,6 +6,7 @@
 //! plus any other top-level keys (metadata), which are kept as they are.
 
 pub mod compare;
+pub mod joints;
 pub mod csv;
 pub mod resample;
 pub mod smooth;

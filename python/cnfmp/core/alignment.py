@@ -94,29 +94,33 @@ class Alignment:
         return line
 
 
-def _warp(trajectory: np.ndarray, source_knots: np.ndarray, target_knots: np.ndarray) -> np.ndarray:
-    """`trajectory` (T, 8) resampled at whole frames 0..target_knots[-1] so that its frame
-    source_knots[k] lands on target_knots[k], linear in between (quaternion part renormalised)."""
+def _warp(trajectory: np.ndarray, source_knots: np.ndarray, target_knots: np.ndarray, poses: bool) -> np.ndarray:
+    """`trajectory` (T, D) resampled at whole frames 0..target_knots[-1] so that its frame
+    source_knots[k] lands on target_knots[k], linear in between (with `poses`, D = 8 and the
+    quaternion part is renormalised; else every column is interpolated as it is)."""
     frames = np.arange(int(round(target_knots[-1])) + 1, dtype=np.float64)
     source = np.interp(frames, target_knots, source_knots)
     low = np.clip(np.floor(source).astype(int), 0, len(trajectory) - 1)
     high = np.minimum(low + 1, len(trajectory) - 1)
     weight = (source - low)[:, None]
+    out = (1 - weight) * trajectory[low] + weight * trajectory[high]
+    if not poses:
+        return out
     quat_low, quat_high = trajectory[low, 3:7], trajectory[high, 3:7]
     quat_high = np.where(np.sum(quat_low * quat_high, axis=1, keepdims=True) < 0, -quat_high, quat_high)
-    out = (1 - weight) * trajectory[low] + weight * trajectory[high]
     quat = (1 - weight) * quat_low + weight * quat_high
     out[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
     return out
 
 
-def align_demonstrations(trajectories: list[np.ndarray], fps: float) -> tuple[list[np.ndarray], Alignment]:
-    """Warps every (T_b, 8) ``x y z qw qx qy qz gripper`` trajectory at `fps` so that its gripper
-    events and its end fall at the median frames of its group (the demonstrations with the
-    same number of events), the events detected with one band for all of them
-    (:func:`event_thresholds`). Returns (aligned trajectories, :class:`Alignment`)."""
-    thresholds = event_thresholds([t[:, 7] for t in trajectories])
-    events = [gripper_events(t[:, 7], thresholds) for t in trajectories]
+def align_demonstrations(trajectories: list[np.ndarray], fps: float, poses: bool = True) -> tuple[list[np.ndarray], Alignment]:
+    """Warps every trajectory at `fps` so that its gripper events and its end fall at the
+    median frames of its group (the demonstrations with the same number of events), the
+    events detected with one band for all of them (:func:`event_thresholds`). Trajectories
+    are (T_b, 8) ``x y z qw qx qy qz gripper`` with `poses`, else (T_b, D) joint values with
+    the gripper last. Returns (aligned trajectories, :class:`Alignment`)."""
+    thresholds = event_thresholds([t[:, -1] for t in trajectories])
+    events = [gripper_events(t[:, -1], thresholds) for t in trajectories]
     counts = Counter(len(e) for e in events)
     majority = max(counts, key=lambda count: (counts[count], -count))
     aligned: list[np.ndarray | None] = [None] * len(trajectories)
@@ -127,7 +131,7 @@ def align_demonstrations(trajectories: list[np.ndarray], fps: float) -> tuple[li
         knots = np.array([[0, *events[b], len(trajectories[b]) - 1] for b in members], np.float64)
         target = np.median(knots, axis=0)
         for b, source in zip(members, knots):
-            aligned[b] = _warp(trajectories[b], source, target)
+            aligned[b] = _warp(trajectories[b], source, target, poses)
             moved[b] = float(np.abs(source - target).max()) / fps
         groups[count] = {"demos": members, "event_times_s": [float(t) / fps for t in target[1:-1]],
                          "duration_s": float(target[-1]) / fps}

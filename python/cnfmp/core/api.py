@@ -61,7 +61,8 @@ def predict(model_dir: str, image_png: bytes, masks_png: bytes, objects: list[st
         seed: seed of inference's random search candidates.
 
     Returns the trajectory JSON of design.md, ``{"fps", "frames": [{"t", "position",
-    "orientation", "gripper"}]}``, plus ``"model"``, ``"objects"`` (per slot: name, present,
+    "orientation", "gripper"}]}`` (a joint-space model: ``{"fps", "joint_names", "frames":
+    [{"t", "joints", "gripper"}]}``), plus ``"model"``, ``"objects"`` (per slot: name, present,
     simplex weights, reconstruction MSE and PSNR as confidence, mask IoU; empty for the
     baselines, which have no objects), ``"scene_psnr_db"`` (null for models without a scene
     field) and ``"timings_ms"``; for a model trained on a recording in another form,
@@ -234,11 +235,13 @@ def _trajectory_document(model_dir: str, c, traj: dict, slots: list[dict], scene
     """The JSON answer of a prediction: trajectory `traj` (decode_trajectory's dict), the
     per-slot diagnostics, the scene's PSNR (None without one) and the timings."""
     # Rounded and converted as whole arrays: per frame, numpy calls cost ~3 ms a scene.
-    columns = [np.asarray(traj[key], dtype=np.float64).round(6).tolist() for key in ("t", "position", "orientation", "gripper")]
-    frames = [{"t": t, "position": p, "orientation": q, "gripper": g} for t, p, q, g in zip(*columns)]
+    keys = ("t", "joints", "gripper") if c.in_joint_space else ("t", "position", "orientation", "gripper")
+    columns = [np.asarray(traj[key], dtype=np.float64).round(6).tolist() for key in keys]
+    frames = [dict(zip(keys, values)) for values in zip(*columns)]
     recorded = _recorded_form(c, traj)
     return json.dumps({
-        "fps": c.output_fps, "frames": frames, **({"recorded": recorded} if recorded else {}),
+        "fps": c.output_fps, **({"joint_names": list(c.joint_names)} if c.in_joint_space else {}),
+        "frames": frames, **({"recorded": recorded} if recorded else {}),
         "model": {"dir": os.path.abspath(model_dir), "task": c.task, "type": c.model_type},
         "objects": slots, "scene_psnr_db": scene_psnr_db,
         # load_model is near zero once the model is resident (it then only checks file times).
@@ -256,8 +259,9 @@ def _recorded_form(config, trajectory: dict) -> dict | None:
 
     spec = config.recorded_motion
     layout = recorded.motion_layout(spec["source"], spec["names"])
-    poses = np.concatenate([trajectory["position"], trajectory["orientation"], trajectory["gripper"][:, None]], axis=1)
-    names, values = recorded.from_poses(poses, layout, spec.get("gripper_range"))
+    parts = ("joints",) if config.in_joint_space else ("position", "orientation")
+    motion = np.concatenate([*(trajectory[part] for part in parts), trajectory["gripper"][:, None]], axis=1)
+    names, values = recorded.from_motion(motion, layout, spec.get("gripper_range"))
     return {"source": spec["source"], "names": names, "values": values.round(6).tolist()}
 
 

@@ -43,6 +43,14 @@ class MotionConfig(JsonConfig):
     #: work in these normalised units.
     position_mean: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     position_std: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0])
+    #: The joints of a joint-space model, as the recording names them (empty: the motion is
+    #: an end-effector pose). A joint-space model learns and predicts these values and the
+    #: gripper; the position and rotation fields above are then unused.
+    joint_names: list[str] = field(default_factory=list)
+    #: Per-joint mean and standard deviation over the demonstrations (the recording's units,
+    #: e.g. rad): the model works in these normalised units. Empty for a pose model.
+    joint_mean: list[float] = field(default_factory=list)
+    joint_std: list[float] = field(default_factory=list)
     #: How the recording's motion vector maps onto the pose the model learns (see
     #: :mod:`cnfmp.data.recorded`): ``{"source", "names", "gripper_range": [low, high] or
     #: null}``. Predictions also come back in that form (``"recorded"`` in the trajectory
@@ -82,16 +90,26 @@ class MotionConfig(JsonConfig):
             if not getattr(self, name) > 0:
                 raise InputError(f"{source}: {name} must be > 0, got {getattr(self, name)!r}")
 
+    @property
+    def in_joint_space(self) -> bool:
+        """Whether the model's motion is joint values + gripper rather than a pose."""
+        return bool(self.joint_names)
+
     def fitted_to(self, demos) -> "MotionConfig":
         """This config with the "(from data)" motion fields filled in from `demos`
         (:class:`cnfmp.core.data.Demonstrations`)."""
-        positions = np.concatenate([traj[:, :3] for traj in demos.trajectories])
         longest = max(len(traj) for traj in demos.trajectories)
+        fitted = dataclasses.replace(self, task=demos.task, duration_s=(longest - 1) / demos.fps,
+                                     recorded_motion=demos.recorded_motion(), joint_names=demos.joint_names)
+        values = np.concatenate([traj[:, :-1] for traj in demos.trajectories])
+        if demos.joint_names:
+            # A joint that never moves keeps a unit spread, so it standardises to 0, not 0/0.
+            return dataclasses.replace(fitted, joint_mean=[float(v) for v in values.mean(axis=0)],
+                                       joint_std=[float(v) if v > 1e-6 else 1.0 for v in values.std(axis=0)])
         return dataclasses.replace(
-            self, task=demos.task, duration_s=(longest - 1) / demos.fps, recorded_motion=demos.recorded_motion(),
-            reference_quat=[float(v) for v in demos.trajectories[0][0, 3:7]],
-            position_mean=[float(v) for v in positions.mean(axis=0)],
-            position_std=[float(max(v, 1e-3)) for v in positions.std(axis=0)],
+            fitted, reference_quat=[float(v) for v in demos.trajectories[0][0, 3:7]],
+            position_mean=[float(v) for v in values[:, :3].mean(axis=0)],
+            position_std=[float(max(v, 1e-3)) for v in values[:, :3].std(axis=0)],
         )
 
 

@@ -35,7 +35,8 @@ class Demonstrations:
         masks: (B, H, W) uint8 label maps (0 background, k = objects[b][k-1]).
         objects: per demonstration, the object names in label order.
         trajectories: per demonstration, (T_b, 8) float64 ``x y z qw qx qy qz gripper``
-            poses at `fps` (gripper in [0, 1]).
+            poses at `fps` (gripper in [0, 1]); in joint space (T_b, J + 1): the joint values
+            in `joint_names` order, then the gripper.
         seeds: scene seeds (-1 where the dataset does not record them).
         prompts: the language instruction of each demonstration.
         camera: the camera feature the images come from.
@@ -71,6 +72,12 @@ class Demonstrations:
             return "given as poses"
         low_high = "" if self.gripper_range is None else f"; gripper {self.gripper_range[0]:g}..{self.gripper_range[1]:g} read as 0..1"
         return self.layout.describe() + low_high
+
+    @property
+    def joint_names(self) -> list[str]:
+        """The joints of a joint-space recording, in the trajectories' column order (empty
+        for poses)."""
+        return [] if self.layout is None else self.layout.joint_names
 
     def recorded_motion(self) -> dict:
         """The layout as a model config keeps it (``MotionConfig.recorded_motion``); empty
@@ -163,7 +170,7 @@ def load_demonstrations(dataset_dir: str, options: RecordingOptions = RecordingO
         episodes.append(np.concatenate([state[start:start + 1], rows]) if prepend_state else rows)
     if len(tasks) > 1:
         raise InputError(f"{dataset_dir}: episodes of several tasks ({', '.join(sorted(tasks))}); train one task per model")
-    trajectories, scale = recorded.to_poses(episodes, layout)
+    trajectories, scale = recorded.to_motion(episodes, layout)
     return Demonstrations(tasks.pop(), float(dataset.fps), np.stack(images), np.stack(masks), objects,
                           trajectories, seeds, prompts, camera, layout, scale, roles, scanned)
 

@@ -39,7 +39,7 @@ from torch.nn import functional as F
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.layers import (FilmMLP, LipschitzLinear, encoded_size, fourier_features, plain_mlp,
                                regular_grid)
-from cnfmp.core.motion import MOTION_DIM, BasisGenerator, time_basis, time_basis_size
+from cnfmp.core.motion import BasisGenerator, motion_dim, time_basis, time_basis_size
 from cnfmp.errors import InputError
 
 #: Largest entry of an object deformation's linear part A(z) (turns up to ~50 deg, scale
@@ -235,7 +235,7 @@ class CnfmpModel(nn.Module):
         self.demo_logits = nn.Parameter(0.3 * torch.randn(num_demos, n, k))
         time_in = time_basis_size(config)
         self.gating = plain_mlp(time_in, config.gating_width, 2, n)
-        self.generator = BasisGenerator(time_in, d, MOTION_DIM)
+        self.generator = BasisGenerator(time_in, d, motion_dim(config))
         if config.anchored_centres:
             #: The inverse camera map's denominator: a centroid (u, v) is on the table at a
             #: position affine in ``(u, v, 1) / (1 + h . (u, v))``.

@@ -20,7 +20,7 @@ from torch.nn import functional as F
 from cnfmp.core import data as core_data
 from cnfmp.core.configuration_cnn_cnmp import CnnCnmpConfig
 from cnfmp.core.layers import plain_mlp
-from cnfmp.core.motion import MOTION_DIM, LossLog, decode_trajectory, demonstration_targets, output_times
+from cnfmp.core.motion import LossLog, motion_dim, decode_trajectory, demonstration_targets, output_times
 
 
 def image_tensor(images: np.ndarray, size: int) -> torch.Tensor:
@@ -47,9 +47,9 @@ class CnnCnmpModel(nn.Module):
             channels_in = channels
         side = config.image_size // 2 ** len(config.conv_channels)
         self.encoder_cnn = nn.Sequential(*layers, nn.Flatten(), nn.Linear(channels_in * side * side, config.image_feature_dim))
-        v = config.image_feature_dim
-        self.observation_encoder = plain_mlp(1 + MOTION_DIM + v, config.width, config.encoder_layers, config.width)
-        self.decoder = plain_mlp(config.width + v + 1, config.width, config.decoder_layers, 2 * MOTION_DIM)
+        v, self.motion_dim = config.image_feature_dim, motion_dim(config)
+        self.observation_encoder = plain_mlp(1 + self.motion_dim + v, config.width, config.encoder_layers, config.width)
+        self.decoder = plain_mlp(config.width + v + 1, config.width, config.decoder_layers, 2 * self.motion_dim)
 
     def image_features(self, images: torch.Tensor) -> torch.Tensor:
         return self.encoder_cnn(images)
@@ -62,7 +62,7 @@ class CnnCnmpModel(nn.Module):
         queries = torch.cat([representation[:, None].expand(-1, t, -1), features[:, None].expand(-1, t, -1),
                              query_t[..., None]], dim=-1)
         out = self.decoder(queries)
-        mean, raw_std = out[..., :MOTION_DIM], out[..., MOTION_DIM:]
+        mean, raw_std = out[..., :self.motion_dim], out[..., self.motion_dim:]
         return mean, self.config.min_std + F.softplus(raw_std)
 
     @classmethod

@@ -23,7 +23,7 @@ from cnfmp.core.adam import Adam
 from cnfmp.core.configuration_nfmp import NfmpConfig
 from cnfmp.core.inference import psnr_db
 from cnfmp.core.layers import FilmMLP, encoded_size, fourier_features, pixel_coords, plain_mlp
-from cnfmp.core.motion import (MOTION_DIM, BasisGenerator, LossLog, decode_trajectory, demonstration_targets,
+from cnfmp.core.motion import (BasisGenerator, LossLog, decode_trajectory, demonstration_targets, motion_dim,
                                motion_loss, output_times, time_basis, time_basis_size)
 from cnfmp.errors import InputError
 
@@ -48,7 +48,7 @@ class NfmpModel(nn.Module):
                                    config.field_layers, 2)
         self.image_field = plain_mlp(encoded_size(2, config.appearance_octaves), config.field_width,
                                      config.field_layers, 3)
-        self.generator = BasisGenerator(time_basis_size(config), config.latent_dim, MOTION_DIM)
+        self.generator = BasisGenerator(time_basis_size(config), config.latent_dim, motion_dim(config))
         with torch.no_grad():  # start undeformed
             self.deformation.out.weight.zero_()
             self.deformation.out.bias.zero_()

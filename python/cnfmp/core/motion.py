@@ -3,7 +3,9 @@ targets, the Gaussian time basis, and the basis-function trajectory generator.
 
 Time is normalised to [0, 1] inside models; files carry seconds. Generator outputs are
 normalised position (config.position_mean / position_std), rotation (rad) relative to
-config.reference_quat in the config's rotation_chart, and gripper opening. `config` is any
+config.reference_quat in the config's rotation_chart, and gripper opening; or, for a joint-
+space model (config.joint_names), the normalised joint values (config.joint_mean /
+joint_std) and the gripper. `config` is any
 :class:`cnfmp.core.configuration_common.MotionConfig`.
 """
 
@@ -18,8 +20,14 @@ from torch import nn
 from cnfmp import geometry
 from cnfmp.core.configuration_common import MotionConfig
 
-#: Outputs of the trajectory generator: position (3), rotation (3, in the config's rotation_chart), gripper (1).
+#: Outputs of a pose model's trajectory generator: position (3), rotation (3, in the config's
+#: rotation_chart), gripper (1).
 MOTION_DIM = 7
+
+
+def motion_dim(config: MotionConfig) -> int:
+    """Outputs of the config's trajectory generator: MOTION_DIM for a pose, or its joints + 1."""
+    return len(config.joint_names) + 1 if config.in_joint_space else MOTION_DIM
 
 
 def time_basis_size(config: MotionConfig) -> int:
@@ -71,7 +79,11 @@ def _rotation_chart(config: MotionConfig):
 
 
 def trajectory_targets(trajectory: np.ndarray, config: MotionConfig) -> np.ndarray:
-    """(T, 8) ``x y z qw qx qy qz gripper`` -> (T, 7) generator targets."""
+    """(T, 8) ``x y z qw qx qy qz gripper`` -> (T, 7) generator targets; in joint space
+    (T, J + 1) joints + gripper -> the same, the joints standardised."""
+    if config.in_joint_space:
+        joints = (trajectory[:, :-1] - np.asarray(config.joint_mean)) / np.asarray(config.joint_std)
+        return np.concatenate([joints, trajectory[:, -1:]], axis=1)
     pos = (trajectory[:, :3] - np.asarray(config.position_mean)) / np.asarray(config.position_std)
     rot = _rotation_chart(config)[0](trajectory[:, 3:7], config.reference_quat)
     return np.concatenate([pos, rot, trajectory[:, 7:8]], axis=1)
@@ -79,8 +91,13 @@ def trajectory_targets(trajectory: np.ndarray, config: MotionConfig) -> np.ndarr
 
 def decode_trajectory(outputs: np.ndarray, config: MotionConfig) -> dict:
     """(T, 7) generator outputs -> ``{"t" (T,) s, "position" (T, 3) m, "orientation" (T, 4)
-    wxyz, "gripper" (T,) in [0, 1]}`` on the config's output grid."""
+    wxyz, "gripper" (T,) in [0, 1]}`` on the config's output grid; in joint space (T, J + 1)
+    -> ``{"t", "joints" (T, J) in the recording's units, "gripper"}``."""
     steps = outputs.shape[0]
+    if config.in_joint_space:
+        return {"t": np.arange(steps) / config.output_fps,
+                "joints": outputs[:, :-1] * np.asarray(config.joint_std) + np.asarray(config.joint_mean),
+                "gripper": np.clip(outputs[:, -1], 0.0, 1.0)}
     return {
         "t": np.arange(steps) / config.output_fps,
         "position": outputs[:, :3] * np.asarray(config.position_std) + np.asarray(config.position_mean),
@@ -99,10 +116,11 @@ def demonstration_targets(trajectories: list[np.ndarray], fps: float, config: Mo
     """Every demonstration's generator targets on one common frame grid.
 
     Args:
-        trajectories: per demonstration (T_b, 8) ``x y z qw qx qy qz gripper`` at `fps`.
+        trajectories: per demonstration (T_b, 8) ``x y z qw qx qy qz gripper`` (in joint
+            space (T_b, J + 1)) at `fps`.
         config: a config fitted to the demonstrations (its duration_s is the longest).
 
-    Returns (targets (B, F, 7) float32, normalised frame times (F,)); a shorter demonstration
+    Returns (targets (B, F, motion_dim) float32, normalised frame times (F,)); a shorter demonstration
     holds its last pose to the end.
     """
     frames = int(round(config.duration_s * fps)) + 1
@@ -117,8 +135,11 @@ def demonstration_targets(trajectories: list[np.ndarray], fps: float, config: Mo
 def motion_loss(config, outputs: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
     """Weighted mean squared error of generator outputs (..., 7) against targets (..., 7):
     position, rotation and gripper weighted by the config's ``position_weight``,
-    ``rotation_weight`` and ``gripper_weight``."""
+    ``rotation_weight`` and ``gripper_weight``. In joint space (..., J + 1): the standardised
+    joints weighted as positions are (both are standardised units), the gripper as a gripper."""
     err = (outputs - targets) ** 2
+    if config.in_joint_space:
+        return config.position_weight * err[..., :-1].mean() + config.gripper_weight * err[..., -1].mean()
     return (config.position_weight * err[..., :3].mean() + config.rotation_weight * err[..., 3:6].mean()
             + config.gripper_weight * err[..., 6].mean())
 

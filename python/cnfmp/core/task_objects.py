@@ -36,6 +36,7 @@ PHASES = 32
 #: grasp's turn follows an object's yaw, which its mask statistics do not carry linearly
 #: (language_pick_place, 30 demonstrations: the left-out error of the rotation is its whole
 #: variance with any number of objects), so it would only add noise to the comparison.
+#: (A joint-space trajectory has no separate position: every joint and the gripper.)
 TARGET_DIMS = (0, 1, 2, 7)
 #: Ridge penalties tried (relative to the number of demonstrations; features standardised).
 PENALTIES = (1e-2, 1e-1, 1.0, 10.0, 100.0)
@@ -102,10 +103,11 @@ def _targets(demos: core_data.Demonstrations) -> np.ndarray:
     varies at one phase does not turn its noise into unit variance); dimensions that never
     vary are left out."""
     samples = []
+    dims = range(demos.trajectories[0].shape[1]) if demos.joint_names else TARGET_DIMS
     for trajectory in demos.trajectories:
         frames = np.linspace(0.0, len(trajectory) - 1, PHASES)
         samples.append(np.stack([np.interp(frames, np.arange(len(trajectory)), trajectory[:, d])
-                                 for d in TARGET_DIMS], axis=1))
+                                 for d in dims], axis=1))
     samples = np.asarray(samples)  # (B, PHASES, D)
     spread = samples.reshape(-1, samples.shape[2]).std(axis=0)
     varying = spread > 1e-6

@@ -52,7 +52,7 @@ def train(dataset_dir: str, out_dir: str, config_paths: Sequence[str] = (), step
     demos = core_data.load_demonstrations(dataset_dir, recording)
     timing = "as recorded"
     if align_time:
-        trajectories, aligned = align_demonstrations(demos.trajectories, demos.fps)
+        trajectories, aligned = align_demonstrations(demos.trajectories, demos.fps, poses=not demos.joint_names)
         demos, timing = dataclasses.replace(demos, trajectories=trajectories), aligned.describe()
     objects = None  # how the task's objects were chosen, for the log and the card
     if isinstance(config, CnfmpConfig):

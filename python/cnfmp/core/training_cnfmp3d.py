@@ -38,6 +38,10 @@ def fit_config_to_data(config: Cnfmp3dConfig, demos: core_data.Demonstrations) -
     if len(demos.scans) != len(demos):
         raise InputError("cnfmp-3d trains on scans, and the dataset records none; record them with "
                          "`cnfmp dataset generate --scan` (or add annotation.scan.* features, see README)")
+    if demos.joint_names:
+        raise InputError("cnfmp-3d moves the gripper in each object's frame, so it learns end-effector poses; "
+                         f"this dataset's motion is joint space ({', '.join(demos.joint_names)}): train the 2D "
+                         "cnfmp on it, or record the tool pose")
     slots = max(int(v.labels.max(initial=0)) for s in demos.scans for v in s.views)
     if slots == 0:
         raise InputError("the scans' label maps label no object")

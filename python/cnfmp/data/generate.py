@@ -13,7 +13,9 @@ lerobot task, ``annotation.masks`` (128x128 uint8 label map of the frame), ``ann
 ``{"task", "seed"}``: the scene this episode was recorded in); with scans (``--scan``, the
 default of tasks that record them), also each episode's scan before the expert moves, on
 every frame (``annotation.scan.<camera>`` and ``annotation.scan.cameras``, see
-:mod:`cnfmp.scan`).
+:mod:`cnfmp.scan`). With ``--joint-space``, ``observation.state`` and ``action`` are instead
+the six joint angles of the simulator's arm (:mod:`cnfmp.sim.arm`, by inverse kinematics of
+the same poses) + the gripper, named as a lerobot recording names them (:func:`motion_names`).
 An episode whose expert run fails the judge is skipped (and reported); the next seed is used.
 """
 
@@ -40,17 +42,29 @@ STATE_NAMES = ["x", "y", "z", "qw", "qx", "qy", "qz", "gripper"]
 IMAGE_KEY = "observation.images.front"
 
 
-def features(height: int = sc.IMAGE_SIZE, width: int = sc.IMAGE_SIZE, scan=None) -> dict:
+def motion_names(joint_space: bool = False) -> list[str]:
+    """Dimension names of ``observation.state`` and ``action``: the pose form STATE_NAMES, or
+    the simulator arm's joints + gripper."""
+    if not joint_space:
+        return STATE_NAMES
+    from cnfmp.sim import arm
+
+    return [*arm.JOINT_NAMES, arm.GRIPPER_NAME]
+
+
+def features(height: int = sc.IMAGE_SIZE, width: int = sc.IMAGE_SIZE, scan=None, joint_space: bool = False) -> dict:
     """The LeRobot feature specification of our datasets (simulated: 128x128 images;
     converted: the source camera's size), with the features of `scan`'s views when given
-    (a :class:`cnfmp.scan.Scan` of the same rig)."""
+    (a :class:`cnfmp.scan.Scan` of the same rig); the motion in joint space with
+    `joint_space`."""
     from cnfmp import scan as scans
 
+    names = motion_names(joint_space)
     return {
         **(scans.dataset_features(scan) if scan is not None else {}),
         IMAGE_KEY: {"dtype": "image", "shape": (height, width, 3), "names": ["height", "width", "channels"]},
-        "observation.state": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
-        "action": {"dtype": "float32", "shape": (8,), "names": STATE_NAMES},
+        "observation.state": {"dtype": "float32", "shape": (len(names),), "names": names},
+        "action": {"dtype": "float32", "shape": (len(names),), "names": names},
         "annotation.masks": {"dtype": "uint8", "shape": (height, width), "names": ["height", "width"]},
         "annotation.objects": {"dtype": "string", "shape": (1,), "names": None},
         # (1,)-shaped numeric features fail to encode with numpy 2.4 in lerobot 0.4.4, so the
@@ -59,12 +73,13 @@ def features(height: int = sc.IMAGE_SIZE, width: int = sc.IMAGE_SIZE, scan=None)
     }
 
 
-def simulate_episode(task_name: str, seed: int, scan: bool = False) -> dict:
+def simulate_episode(task_name: str, seed: int, scan: bool = False, joint_space: bool = False) -> dict:
     """Runs the expert for (task, seed) and records it at DATASET_FPS.
 
     Returns ``{"task", "seed", "success", "reasons", "prompt", "objects", "images" (N,128,128,3) uint8,
-    "masks" (N,128,128) uint8, "state" (N,8) float32, "action" (N,8) float32, "scan"}``; "scan" is
-    the scene's :class:`cnfmp.scan.Scan` before the episode when `scan`, else None.
+    "masks" (N,128,128) uint8, "state" (N,D) float32, "action" (N,D) float32, "scan"}``; "scan" is
+    the scene's :class:`cnfmp.scan.Scan` before the episode when `scan`, else None; D is 8
+    (the pose form), or 7 (the arm's joints + gripper) with `joint_space`.
     """
     from cnfmp.sim import engine
     from cnfmp.sim.scan import render_scan
@@ -84,6 +99,8 @@ def simulate_episode(task_name: str, seed: int, scan: bool = False) -> dict:
     state = np.concatenate([log.ee_position[picked], log.ee_quat[picked], log.finger_opening[picked, None]], axis=1)
     nxt = np.minimum(picked + every, len(path["position"]) - 1)
     action = np.concatenate([path["position"][nxt], path["orientation"][nxt], path["gripper"][nxt, None]], axis=1)
+    if joint_space:
+        state, action = _in_joint_space(path, log, picked, nxt)
     rgb, masks = zip(*images)
     return {
         "task": task_name, "seed": seed, "success": verdict.success, "reasons": verdict.reasons,
@@ -91,6 +108,22 @@ def simulate_episode(task_name: str, seed: int, scan: bool = False) -> dict:
         "images": np.stack(rgb), "masks": np.stack(masks),
         "state": state.astype(np.float32), "action": action.astype(np.float32), "scan": scanned,
     }
+
+
+def _in_joint_space(path: dict, log, picked: np.ndarray, nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (state, action) rows of an episode as the arm's joint angles + gripper: the
+    commanded path solved at every control step (so the arm moves continuously), the action
+    its next frame's angles, the state the measured pose solved from the commanded angles of
+    the same frame."""
+    from cnfmp.sim import arm
+
+    kinematics = arm.Arm()
+    commanded = kinematics.inverse(path["position"], path["orientation"])
+    measured = np.stack([kinematics.inverse(log.ee_position[k:k + 1], log.ee_quat[k:k + 1], commanded[k])[0]
+                         for k in picked])
+    state = np.concatenate([measured, log.finger_opening[picked, None]], axis=1)
+    action = np.concatenate([commanded[nxt], path["gripper"][nxt, None]], axis=1)
+    return state, action
 
 
 def _worker_init() -> None:
@@ -118,10 +151,11 @@ def _check_request(task: str, episodes: int, seed: int, out_dir: str) -> None:
 
 
 def generate_dataset(task: str, episodes: int, seed: int, out_dir: str, workers: int = 2,
-                     progress: bool = True, scan: bool | None = None) -> str:
+                     progress: bool = True, scan: bool | None = None, joint_space: bool = False) -> str:
     """Writes a LeRobot dataset of `episodes` successful expert demonstrations of `task`,
     from seeds `seed`, `seed + 1`, ... (a seed whose expert run fails is skipped), with each
-    episode's scan when `scan` (None: when the task records scans, ``Task.records_scans``).
+    episode's scan when `scan` (None: when the task records scans, ``Task.records_scans``),
+    its motion as the simulator arm's joint angles with `joint_space`.
 
     Returns JSON ``{"out", "episodes", "frames", "seeds", "skipped_seeds", "seconds",
     "episodes_per_second"}``. Raises InputError for an unknown task, episodes <= 0, an
@@ -149,7 +183,7 @@ def generate_dataset(task: str, episodes: int, seed: int, out_dir: str, workers:
             next_seed = seed
             while len(written) < episodes:
                 # Ask for exactly as many episodes as are missing (more after skipped seeds).
-                batch = [(task, s, scan) for s in range(next_seed, next_seed + episodes - len(written))]
+                batch = [(task, s, scan, joint_space) for s in range(next_seed, next_seed + episodes - len(written))]
                 next_seed += len(batch)
                 for episode in pool.imap(_simulate, batch):
                     if not episode["success"]:
@@ -157,8 +191,9 @@ def generate_dataset(task: str, episodes: int, seed: int, out_dir: str, workers:
                         continue
                     if dataset is None:
                         dataset = LeRobotDataset.create(repo_id=f"cnfmp/{task}", fps=DATASET_FPS,
-                                                        features=features(scan=episode["scan"]), root=staging,
-                                                        robot_type="cnfmp_floating_gripper", use_videos=False)
+                                                        features=features(scan=episode["scan"], joint_space=joint_space),
+                                                        root=staging, use_videos=False,
+                                                        robot_type="cnfmp_arm" if joint_space else "cnfmp_floating_gripper")
                     frames += _write_episode(dataset, episode)
                     written.append(episode["seed"])
                     bar.update(1)

@@ -256,16 +256,18 @@ def inspect(dataset_dir: str) -> str:
     trajectories are the measured states (else the actions) read by their layout
     (:mod:`cnfmp.data.recorded`).
 
-    Returns JSON ``{"checks": [{"name", "ok", "detail"}], "fps", "episodes": [{"index",
-    "timestamps": [...], "state": [[8 floats] per frame]}]}``; the trajectory invariants are
-    checked by the caller (the Rust trajectory code).
+    Returns JSON ``{"checks": [{"name", "ok", "detail"}], "fps", "joint_names", "episodes":
+    [{"index", "timestamps": [...], "state": [[floats] per frame]}]}``: a state is the 8 values
+    ``x y z qw qx qy qz gripper``, or with ``joint_names`` (null for a pose recording) the joint
+    values then the gripper. The trajectory invariants are checked by the caller (the Rust
+    trajectory code).
     """
     checks = []
     try:
         dataset = open_dataset(dataset_dir)  # not the export cache: validate the files as they are now
     except InputError as err:
         return json.dumps({"checks": [{"name": "lerobot read-back", "ok": False, "detail": str(err)}],
-                           "fps": 0.0, "episodes": []})
+                           "fps": 0.0, "joint_names": None, "episodes": []})
     from cnfmp.data import recorded
 
     info = dataset.meta.info
@@ -309,7 +311,7 @@ def inspect(dataset_dir: str) -> str:
                 episodes.append({"index": k, "timestamps": table["timestamp"][start:end],
                                  "motion": np.asarray(table[source][start:end], np.float64)})
         if layout is not None and episodes:
-            poses, _ = recorded.to_poses([e.pop("motion") for e in episodes], layout)
+            poses, _ = recorded.to_motion([e.pop("motion") for e in episodes], layout)
             for episode, pose in zip(episodes, poses):
                 episode["state"] = pose.tolist()
         checks.append({"name": "lerobot read-back", "ok": True,
@@ -319,4 +321,5 @@ def inspect(dataset_dir: str) -> str:
         checks.append({"name": "lerobot read-back", "ok": False, "detail": f"{type(err).__name__}: {err}"})
     checks.append({"name": "annotations", "ok": not problems,
                    "detail": "; ".join(problems[:5]) if problems else "label maps match the images and name every label"})
-    return json.dumps({"checks": checks, "fps": float(dataset.fps), "episodes": episodes})
+    joint_names = list(layout.joint_names) if layout is not None and layout.joint_names else None
+    return json.dumps({"checks": checks, "fps": float(dataset.fps), "joint_names": joint_names, "episodes": episodes})

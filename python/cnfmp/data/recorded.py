@@ -2,21 +2,24 @@
 
 A LeRobot dataset made by ``lerobot-record`` names its camera features
 ``observation.images.<name>`` (images or videos of any size) and its motion features
-``action`` / ``observation.state`` with per-dimension names. The core learns end-effector
-poses ``x y z qw qx qy qz gripper`` (:data:`cnfmp.data.generate.STATE_NAMES`); this module
-says which camera a dataset's scenes come from and turns a declared or recorded motion layout
-into those poses:
+``action`` / ``observation.state`` with per-dimension names. The core learns one of two
+motion forms, declared by those names; this module says which camera a dataset's scenes come
+from and turns a recorded motion vector into the form the core learns:
 
-- position: dimensions named ``x``, ``y``, ``z`` (metres);
-- rotation, one of: a quaternion ``qw qx qy qz`` (any order of the four names), a rotation
-  vector ``rx ry rz`` (axis times angle, rad), or Euler angles ``roll pitch yaw`` (rad, the
-  fixed-axis x-y-z convention of ROS / URDF: R = Rz(yaw) Ry(pitch) Rx(roll));
-- gripper: one dimension whose name contains ``gripper``, kept as it is when recorded in
-  [0, 1], else rescaled to [0, 1] over the dataset's range.
+- **end-effector pose** ``x y z qw qx qy qz gripper`` (:data:`cnfmp.data.generate.STATE_NAMES`)
+  from dimensions named ``x``, ``y``, ``z`` (metres) plus a rotation, one of: a quaternion
+  ``qw qx qy qz`` (any order of the four names), a rotation vector ``rx ry rz`` (axis times
+  angle, rad), or Euler angles ``roll pitch yaw`` (rad, the fixed-axis x-y-z convention of
+  ROS / URDF: R = Rz(yaw) Ry(pitch) Rx(roll));
+- **joint space**: a vector with none of those names, whose every dimension but the gripper
+  is a joint (``shoulder_pan.pos`` ...), learned as recorded (radians, metres or motor units:
+  the core standardises each dimension) with the joints in the recording's order, then the
+  gripper.
 
-Names match after lower-casing and dropping a prefix such as ``ee.`` / ``eef_`` /
-``end_effector.`` and a ``.pos`` suffix. Joint-space vectors (``shoulder_pan.pos`` ...) are
-refused with a clear message: the core's motion is an end-effector pose.
+Either way the gripper is one dimension whose name contains ``gripper``, kept as it is when
+recorded in [0, 1], else rescaled to [0, 1] over the dataset's range. Names match after
+lower-casing and dropping a prefix such as ``ee.`` / ``eef_`` / ``end_effector.`` and a
+``.pos`` suffix.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ MOTION_SOURCES = ("action", "observation.state")
 #: The rotation forms a layout may declare, with the names of their dimensions in order.
 ROTATION_FORMS = {"quaternion": ("qw", "qx", "qy", "qz"), "rotvec": ("rx", "ry", "rz"),
                   "euler": ("roll", "pitch", "yaw")}
+#: MotionLayout.rotation of a joint-space layout (no end-effector rotation).
+JOINTS = "joints"
 _PREFIX = re.compile(r"^(ee|eef|end_effector|tcp|tool)[._]")
 _SUFFIX = re.compile(r"[._]pos$")
 
@@ -43,27 +48,36 @@ def _plain(name: str) -> str:
 
 @dataclass(frozen=True)
 class MotionLayout:
-    """Where each part of the end-effector pose sits in a recorded motion vector.
+    """Where each part of the motion the core learns sits in a recorded motion vector.
 
     Attributes:
         source: the dataset feature read (one of MOTION_SOURCES).
         names: the vector's dimension names as recorded or declared.
-        position: indices of x, y, z.
-        rotation: "quaternion", "rotvec" or "euler" (see ROTATION_FORMS).
-        rotation_indices: indices of the rotation's dimensions, in ROTATION_FORMS order.
+        position: indices of x, y, z (empty in joint space).
+        rotation: "quaternion", "rotvec" or "euler" (see ROTATION_FORMS), or JOINTS.
+        rotation_indices: indices of the rotation's dimensions, in ROTATION_FORMS order
+            (empty in joint space).
         gripper: index of the gripper dimension.
+        joints: indices of the joints, in the recording's order (empty for a pose).
     """
 
     source: str
     names: tuple[str, ...]
-    position: tuple[int, int, int]
+    position: tuple[int, ...]
     rotation: str
     rotation_indices: tuple[int, ...]
     gripper: int
+    joints: tuple[int, ...] = ()
+
+    @property
+    def joint_names(self) -> list[str]:
+        """The joints' names as recorded (empty for a pose)."""
+        return [self.names[k] for k in self.joints]
 
     def describe(self) -> str:
         """One line for logs and the model card, e.g. ``action: x y z rx ry rz gripper (rotvec)``."""
-        return f"{self.source}: {' '.join(self.names)} ({self.rotation})"
+        form = f"{len(self.joints)} joints" if self.rotation == JOINTS else self.rotation
+        return f"{self.source}: {' '.join(self.names)} ({form})"
 
 
 def motion_layout(source: str, names) -> MotionLayout:
@@ -83,16 +97,25 @@ def motion_layout(source: str, names) -> MotionLayout:
     missing = [axis for axis in ("x", "y", "z") if axis not in where]
     grippers = [k for k, name in enumerate(plain) if "gripper" in name]
     forms = [form for form, parts in ROTATION_FORMS.items() if all(p in where for p in parts)]
-    if missing or not forms:
-        raise InputError(
-            f"{source} ({', '.join(names)}) is not an end-effector pose the core can learn: "
-            + (f"no {'/'.join(missing)} position dimension(s)" if missing else "no rotation")
-            + ". The core learns x, y, z plus a quaternion (qw qx qy qz), a rotation vector (rx ry rz) "
-              "or Euler angles (roll pitch yaw), plus a gripper; joint-space recordings are not supported yet. "
-              "If the names differ, declare them with --motion-names")
     if len(grippers) != 1:
         raise InputError(f"{source} ({', '.join(names)}) needs exactly one dimension named like 'gripper', "
                          f"found {len(grippers)}")
+    pose_names = {"x", "y", "z", *(p for parts in ROTATION_FORMS.values() for p in parts)}
+    if not pose_names & set(where):
+        joints = tuple(k for k in range(len(names)) if k != grippers[0])
+        if not joints:
+            raise InputError(f"{source} ({', '.join(names)}) has only a gripper: no joint or pose to learn")
+        if len(set(plain)) != len(plain):
+            raise InputError(f"{source} ({', '.join(names)}) names two dimensions alike; declare distinct "
+                             "names with --motion-names")
+        return MotionLayout(source, names, (), JOINTS, (), grippers[0], joints)
+    if missing or not forms:
+        raise InputError(
+            f"{source} ({', '.join(names)}) is neither an end-effector pose nor joint space: "
+            + (f"no {'/'.join(missing)} position dimension(s)" if missing else "no rotation")
+            + ". A pose is x, y, z plus a quaternion (qw qx qy qz), a rotation vector (rx ry rz) "
+              "or Euler angles (roll pitch yaw), plus a gripper; a joint-space vector uses none of these names. "
+              "If the names differ, declare them with --motion-names")
     form = forms[0]
     return MotionLayout(source, names, (where["x"], where["y"], where["z"]), form,
                         tuple(where[p] for p in ROTATION_FORMS[form]), grippers[0])
@@ -119,8 +142,10 @@ def _quaternions(values: np.ndarray, layout: MotionLayout) -> np.ndarray:
     return quat
 
 
-def to_poses(episodes: list[np.ndarray], layout: MotionLayout) -> tuple[list[np.ndarray], tuple[float, float] | None]:
-    """Every episode's (T_b, D) motion vectors as (T_b, 8) ``x y z qw qx qy qz gripper`` poses.
+def to_motion(episodes: list[np.ndarray], layout: MotionLayout) -> tuple[list[np.ndarray], tuple[float, float] | None]:
+    """Every episode's (T_b, D) motion vectors in the form the core learns: (T_b, 8)
+    ``x y z qw qx qy qz gripper`` poses, or in joint space (T_b, J + 1) the joints in the
+    layout's order then the gripper.
 
     A gripper recorded in [0, 1] is kept as it is (a constant one too: a task without a
     grasp). Any other range (millimetres, 0-100, motor units) is rescaled linearly to [0, 1]
@@ -141,23 +166,43 @@ def to_poses(episodes: list[np.ndarray], layout: MotionLayout) -> tuple[list[np.
         gripper = values[:, layout.gripper]
         if scale is not None:
             gripper = (gripper - low) / (high - low)
+        if layout.rotation == JOINTS:
+            poses.append(np.concatenate([values[:, list(layout.joints)], gripper[:, None]], axis=1))
+            continue
         poses.append(np.concatenate([values[:, list(layout.position)], _quaternions(values, layout),
                                      gripper[:, None]], axis=1))
     return poses, scale
 
 
-def from_poses(poses: np.ndarray, layout: MotionLayout, gripper_range: tuple[float, float] | None) -> tuple[list[str], np.ndarray]:
-    """(T, 8) ``x y z qw qx qy qz gripper`` poses back in the recording's form: the names of
-    the dimensions the layout uses, in the recording's order, and (T, len(names)) values
-    (rotation as recorded, gripper in the recording's units; the inverse of :func:`to_poses`)."""
+def from_motion(poses: np.ndarray, layout: MotionLayout, gripper_range: tuple[float, float] | None) -> tuple[list[str], np.ndarray]:
+    """(T, 8) ``x y z qw qx qy qz gripper`` poses, or (T, J + 1) joints + gripper, back in the
+    recording's form: the names of the dimensions the layout uses, in the recording's order,
+    and (T, len(names)) values (rotation as recorded, gripper in the recording's units; the
+    inverse of :func:`to_motion`)."""
     from cnfmp import geometry
 
     poses = np.asarray(poses, np.float64)
-    columns = dict(zip(layout.position, poses[:, :3].T))
+    if layout.rotation == JOINTS:
+        columns = dict(zip(layout.joints, poses[:, :-1].T))
+    else:
+        columns = dict(zip(layout.position, poses[:, :3].T))
+        columns.update(zip(layout.rotation_indices, _recorded_rotation(poses[:, 3:7], layout).T))
+    gripper = poses[:, -1]
+    if gripper_range is not None:
+        gripper = gripper_range[0] + gripper * (gripper_range[1] - gripper_range[0])
+    columns[layout.gripper] = gripper
+    order = sorted(columns)
+    return [layout.names[k] for k in order], np.stack([columns[k] for k in order], axis=1)
+
+
+def _recorded_rotation(quats: np.ndarray, layout: MotionLayout) -> np.ndarray:
+    """(T, 4) ``wxyz`` quaternions in the layout's rotation form: (T, 4) or (T, 3)."""
+    from cnfmp import geometry
+
     if layout.rotation == "quaternion":
-        rotation = poses[:, 3:7]
-    elif layout.rotation == "rotvec":
-        rotation = geometry.to_rotation(poses[:, 3:7]).as_rotvec()
+        return quats
+    if layout.rotation == "rotvec":
+        rotation = geometry.to_rotation(quats).as_rotvec()
         # Near half a turn, v and v (1 - 2 pi / |v|) are the same rotation: keep the one
         # closest to the previous frame's, so a robot interpolating the values never flips.
         for k in range(1, len(rotation)):
@@ -166,15 +211,8 @@ def from_poses(poses: np.ndarray, layout: MotionLayout, gripper_range: tuple[flo
                 other = rotation[k] * (1 - 2 * np.pi / angle)
                 if np.linalg.norm(other - rotation[k - 1]) < np.linalg.norm(rotation[k] - rotation[k - 1]):
                     rotation[k] = other
-    else:
-        rotation = np.unwrap(geometry.to_rotation(poses[:, 3:7]).as_euler("xyz"), axis=0)
-    columns.update(zip(layout.rotation_indices, rotation.T))
-    gripper = poses[:, 7]
-    if gripper_range is not None:
-        gripper = gripper_range[0] + gripper * (gripper_range[1] - gripper_range[0])
-    columns[layout.gripper] = gripper
-    order = sorted(columns)
-    return [layout.names[k] for k in order], np.stack([columns[k] for k in order], axis=1)
+        return rotation
+    return np.unwrap(geometry.to_rotation(quats).as_euler("xyz"), axis=0)
 
 
 def camera_keys(features: dict) -> list[str]:

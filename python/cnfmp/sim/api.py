@@ -20,7 +20,8 @@ from cnfmp.sim.scene import CONTROL_HZ, IMAGE_SIZE, project_to_image
 from cnfmp.sim.task import check_seed
 from cnfmp.sim.tasks import get_task, task_names
 
-__all__ = ["CONTROL_HZ", "draw_trajectory", "execute", "expert", "render", "task_names", "tasks_json"]
+__all__ = ["CONTROL_HZ", "draw_trajectory", "execute", "expert", "forward_kinematics", "render", "task_names",
+           "tasks_json"]
 
 #: Trajectory overlays are drawn this large (px) so the path is legible.
 _OVERLAY_SIDE = 512
@@ -93,6 +94,28 @@ def expert(task: str, seed: int) -> dict:
     path = task_obj.expert(scene)
     return {"fps": float(CONTROL_HZ), "prompt": scene.prompt,
             **{k: np.ascontiguousarray(path[k], dtype=np.float64) for k in ("t", "position", "orientation", "gripper")}}
+
+
+def forward_kinematics(joint_names: list[str], fps: float, t, joints, gripper) -> dict:
+    """A joint-space trajectory of the simulator's arm (:mod:`cnfmp.sim.arm`) as the tool
+    poses it puts the gripper at: how `cnfmp eval` executes and scores a joint-space model.
+
+    Args:
+        joint_names: the trajectory's joints, which must be the arm's (arm.JOINT_NAMES).
+        fps: its rate (Hz); t: (T,) s; joints: (T, 6) rad; gripper: (T,) in [0, 1].
+
+    Returns ``{"fps", "t", "position" (T, 3), "orientation" (T, 4) wxyz, "gripper"}``.
+    InputError for joints that are not the arm's.
+    """
+    from cnfmp.sim import arm
+
+    if not arm.is_arm_joints(joint_names):
+        raise InputError(f"the trajectory's joints ({', '.join(joint_names)}) are not the simulator arm's "
+                         f"({', '.join(arm.JOINT_NAMES)}), so the simulator cannot execute it; a joint-space model "
+                         "can be evaluated here only when it was trained on `cnfmp dataset generate --joint-space` data")
+    position, orientation = arm.Arm().forward(np.asarray(joints, np.float64))
+    return {"fps": float(fps), "t": np.ascontiguousarray(t, dtype=np.float64), "position": position,
+            "orientation": orientation, "gripper": np.ascontiguousarray(gripper, dtype=np.float64)}
 
 
 def execute(task: str, seed: int, position, orientation, gripper) -> str:
