@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from cnfmp import geometry
-from cnfmp.core import alignment, api, data as core_data, training
+from cnfmp.core import alignment, api, data as core_data, segment_timing, training
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.data import annotate, generate, recorded
 from cnfmp.errors import InputError
@@ -360,3 +360,26 @@ def test_a_small_camera_and_two_demonstration_lengths_train_with_the_default_con
     assert abs(prediction["frames"][-1]["t"] - config["duration_s"]) < 0.2
     assert (lengths[0] - 1) / 10 - 0.2 <= config["duration_s"] <= (lengths[1] - 1) / 10 + 0.2
     assert np.isfinite([f["position"] for f in prediction["frames"]]).all()
+
+
+def test_a_pace_that_follows_the_scene_is_learned_and_a_random_one_is_not():
+    rng = np.random.default_rng(3)
+    features = rng.normal(size=(20, 6)) @ rng.normal(size=(6, 24))  # latents: a few scene factors
+    # Segment durations that follow the scene (a far object takes longer), then at random.
+    durations = np.stack([1.0 + 0.3 * np.tanh(features[:, 0]), 2.0 + 0.5 * np.tanh(features[:, 1])], axis=1)
+    knots = np.concatenate([np.zeros((20, 1)), np.cumsum(durations, axis=1)], axis=1)
+    timing = segment_timing.fit(features, knots, np.median(knots, axis=0))
+    assert timing is not None and timing.loo_error_s < 0.5 * timing.constant_error_s
+    predicted = np.array([timing.knots(f) for f in features])
+    assert np.abs(predicted - knots).mean() < 0.5 * np.abs(np.median(knots, axis=0) - knots).mean()
+    shuffled = rng.permutation(knots)
+    assert segment_timing.fit(features, shuffled, np.median(knots, axis=0)) is None
+    assert segment_timing.fit(features[:4], knots[:4], np.median(knots, axis=0)) is None  # too few to tell
+    # Re-timing moves the median's knots onto the scene's and keeps the path.
+    times = np.arange(151) / 50.0
+    trajectory = {"t": times, "position": np.stack([times, 0 * times, 0 * times], axis=1),
+                  "orientation": np.tile([1.0, 0, 0, 0], (151, 1)), "gripper": (times < 1.0).astype(float)}
+    retimed = segment_timing.retime(trajectory, np.array([0.0, 1.0, 3.0]), np.array([0.0, 1.5, 3.5]), 50.0)
+    assert retimed["t"][-1] == pytest.approx(3.5) and len(retimed["t"]) == 176
+    assert retimed["position"][75, 0] == pytest.approx(1.0) and retimed["position"][-1, 0] == pytest.approx(3.0)
+    np.testing.assert_allclose(np.linalg.norm(retimed["orientation"], axis=1), 1.0)

@@ -3,8 +3,9 @@
 People demonstrate at their own pace: one grasps after 2 s, another after 3.5 s. Before
 training, each demonstration is warped piecewise-linearly in time so that its gripper closing
 and opening events, and its end, fall at the median times of the demonstrations with the same
-number of events; the model then learns one timing per task and the predicted trajectory runs
-on those median segment durations, in seconds. Demonstrations with another number of events
+number of events; the model then learns phase-normalised motion, and the predicted trajectory
+runs on the median segment durations, in seconds, or on the scene's own where training finds
+them predictable from the scene (:mod:`cnfmp.core.segment_timing`). Demonstrations with another number of events
 than the others (a task with variants, or a fumbled grasp) are aligned among their own kind
 and reported.
 """
@@ -71,12 +72,20 @@ class Alignment:
             "duration_s": median duration}``.
         majority: the most common event count (the task's).
         moved_s: per demonstration, the largest shift of an event or end it needed (s).
+        knots_s: per demonstration, its knots before alignment: 0, its events, its end (s).
     """
 
     events: list[list[int]]
     groups: dict[int, dict]
     majority: int
     moved_s: list[float]
+    knots_s: list[list[float]]
+
+    def timing(self) -> "RecordedTiming":
+        """The majority's timeline and each of its demonstrations' own knots."""
+        group = self.groups[self.majority]
+        return RecordedTiming([0.0, *group["event_times_s"], group["duration_s"]],
+                              [self.knots_s[b] if len(e) == self.majority else None for b, e in enumerate(self.events)])
 
     def outliers(self) -> list[int]:
         """Demonstrations whose number of events differs from the majority's."""
@@ -92,6 +101,22 @@ class Alignment:
         if others:
             line += f"; {len(others)} with another count aligned among themselves (demonstrations {', '.join(map(str, others))})"
         return line
+
+
+@dataclass(frozen=True)
+class RecordedTiming:
+    """How the demonstrations were timed before alignment, for learning a per-scene timing
+    (:mod:`cnfmp.core.segment_timing`).
+
+    Attributes:
+        reference_knots_s: the aligned timeline of the task's number of events: 0, the median
+            event times, the median end (s).
+        demo_knots_s: per demonstration its own knots as recorded (s), or None for one with
+            another number of events.
+    """
+
+    reference_knots_s: list[float]
+    demo_knots_s: list[list[float] | None]
 
 
 def _warp(trajectory: np.ndarray, source_knots: np.ndarray, target_knots: np.ndarray, poses: bool) -> np.ndarray:
@@ -135,4 +160,5 @@ def align_demonstrations(trajectories: list[np.ndarray], fps: float, poses: bool
             moved[b] = float(np.abs(source - target).max()) / fps
         groups[count] = {"demos": members, "event_times_s": [float(t) / fps for t in target[1:-1]],
                          "duration_s": float(target[-1]) / fps}
-    return aligned, Alignment(events, groups, majority, moved)
+    knots_s = [[0.0, *(frame / fps for frame in e), (len(t) - 1) / fps] for e, t in zip(events, trajectories)]
+    return aligned, Alignment(events, groups, majority, moved, knots_s)

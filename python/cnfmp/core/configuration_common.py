@@ -56,6 +56,10 @@ class MotionConfig(JsonConfig):
     #: null}``. Predictions also come back in that form (``"recorded"`` in the trajectory
     #: JSON). Empty when the recording is the pose form itself (x y z qw qx qy qz gripper).
     recorded_motion: dict = field(default_factory=dict)
+    #: The scene's own timing of the gripper-event segments, where training found it
+    #: predictable (:class:`cnfmp.core.segment_timing.SegmentTiming` as a dict); empty: every
+    #: prediction runs on the aligned demonstrations' median timing.
+    segment_timing: dict = field(default_factory=dict)
 
     # ---- motion encoding ----
     #: How the generator's three rotation outputs encode an orientation relative to

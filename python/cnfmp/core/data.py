@@ -21,6 +21,7 @@ import numpy as np
 from cnfmp.errors import InputError
 
 if TYPE_CHECKING:
+    from cnfmp.core.alignment import RecordedTiming
     from cnfmp.data.recorded import MotionLayout
 
 
@@ -46,6 +47,8 @@ class Demonstrations:
             `cnfmp dataset annotate` recorded them (else empty).
         scans: per demonstration, the scan taken before it (:class:`cnfmp.scan.Scan`),
             where the dataset records scans (else empty).
+        timing: for trajectories aligned by their gripper events, how they were timed
+            before (:class:`cnfmp.core.alignment.RecordedTiming`); None as recorded.
     """
 
     task: str
@@ -61,6 +64,7 @@ class Demonstrations:
     gripper_range: tuple[float, float] | None = None
     roles: list[list[str]] = dataclasses.field(default_factory=list)
     scans: list = dataclasses.field(default_factory=list)
+    timing: RecordedTiming | None = None
 
     def __len__(self) -> int:
         return len(self.trajectories)

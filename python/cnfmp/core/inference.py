@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from cnfmp import helper_processes, runtime
-from cnfmp.core import data as core_data
+from cnfmp.core import data as core_data, segment_timing
 from cnfmp.core.adam import Adam
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.layers import pixel_coords
@@ -159,6 +159,8 @@ class Predictor:
         with torch.no_grad():
             self.bg_rgb, self.bg_logit = model.background_terms(self.coords[None])
             self.times = torch.from_numpy(output_times(self.config)).float()
+        timing = self.config.segment_timing
+        self.segment_timing = segment_timing.SegmentTiming.from_dict(timing) if timing else None
         self.whole_image_residual = self._coarse_residual(self.coords[None])
         # What the helper processes know of this predictor (see _fit_on_helpers).
         self._helper_key = f"{os.getpid()}-{next(_KEYS)}"
@@ -433,7 +435,11 @@ class Predictor:
             cues = torch.from_numpy(inputs.tilt_cues)[None]
             outputs = self.model.motion(self.times, latents, present[None], anchors, shading,
                                         cues)[0].numpy().astype(np.float64)
+            features = self.model.motion_latents(latents, anchors, present[None], shading).flatten().numpy()
         trajectory = decode_trajectory(outputs, self.config)
+        if self.segment_timing is not None:  # from the median timeline to this scene's
+            trajectory = segment_timing.retime(trajectory, np.asarray(self.segment_timing.knots_s),
+                                               self.segment_timing.knots(features), self.config.output_fps)
         decoded = time.perf_counter()
         fit = self.scene_fit(latents, torch.from_numpy(inputs.colour), present,
                              torch.from_numpy(inputs.rgb.reshape(-1, 3)), inputs.masks, anchors, map_objects, rendered)

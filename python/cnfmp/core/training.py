@@ -53,7 +53,8 @@ def train(dataset_dir: str, out_dir: str, config_paths: Sequence[str] = (), step
     timing = "as recorded"
     if align_time:
         trajectories, aligned = align_demonstrations(demos.trajectories, demos.fps, poses=not demos.joint_names)
-        demos, timing = dataclasses.replace(demos, trajectories=trajectories), aligned.describe()
+        demos = dataclasses.replace(demos, trajectories=trajectories, timing=aligned.timing())
+        timing = aligned.describe()
     objects = None  # how the task's objects were chosen, for the log and the card
     if isinstance(config, CnfmpConfig):
         if config.task_objects:
@@ -111,6 +112,7 @@ def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, 
         objects += f"| task objects | {task_objects} |\n"
     extra = (f" (plus {len(demos) * config.num_objects * config.num_endpoints} demonstration simplex weights)"
              if isinstance(config, CnfmpConfig) else "")
+    segments = f"| segment timing | {summary['segment_timing']} |\n" if summary.get("segment_timing") else ""
     choice = summary.get("draws")
     draws = (f"| draws | {choice['count']} initialisations trained {choice['steps']} steps each; draw "
              f"{choice['chosen'] + 1} went on (trajectory loss then: "
@@ -131,7 +133,7 @@ def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, 
 | camera | `{demos.camera}` |
 | motion | {demos.motion} |
 | timing | {timing} |
-| trajectory | {config.duration_s:.1f} s at {config.output_fps:g} Hz |
+{segments}| trajectory | {config.duration_s:.1f} s at {config.output_fps:g} Hz |
 
 Command:
 

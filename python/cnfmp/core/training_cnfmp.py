@@ -15,7 +15,7 @@ import time
 import numpy as np
 import torch
 
-from cnfmp.core import data as core_data
+from cnfmp.core import data as core_data, segment_timing
 from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.layers import pixel_coords
 from cnfmp.core.modeling_cnfmp import CnfmpModel
@@ -214,17 +214,44 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
     model.eval()
     final = run.losses.final()
     if config.motion_refit_steps:  # the motion the model ships with is the refit one
-        final["motion"] = refit_motion(model, data, demos, log)
+        final["motion"], latents = refit_motion(model, data, demos, log)
+    else:
+        with torch.no_grad():
+            latents = model.latents(torch.softmax(model.demo_logits, dim=-1), data.present)
+    timing = fit_segment_timing(model, data, demos, latents)
     summary = {"steps": config.steps, "demos": len(data), "seconds": round(time.monotonic() - started, 1),
                "final_losses": {f"{name}_mse": value for name, value in final.items()},
-               "parameters": model.parameter_count(), **choice}
+               "parameters": model.parameter_count(), **choice, **({"segment_timing": timing} if timing else {})}
     return model, summary
 
 
-def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstrations, log=None) -> float:
+def fit_segment_timing(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstrations,
+                       latents: torch.Tensor) -> str | None:
+    """Sets the model's per-scene segment timing (:mod:`cnfmp.core.segment_timing`) from the
+    demonstrations' latents (B, N, D) as the motion reads them, where the demonstrations were
+    aligned; returns what was decided, for the log and the card (None as recorded)."""
+    if demos.timing is None:
+        return None
+    with torch.no_grad():
+        features = model.motion_latents(latents, data.centre, data.present, data.shading).flatten(1).numpy()
+    members = [b for b, knots in enumerate(demos.timing.demo_knots_s) if knots is not None]
+    if len(members) < segment_timing.MIN_DEMOS:
+        return (f"one for every scene, the median's ({len(members)} demonstrations with the task's gripper events; "
+                f"a per-scene timing needs {segment_timing.MIN_DEMOS})")
+    timing = segment_timing.fit(features[members], np.array([demos.timing.demo_knots_s[b] for b in members]),
+                                np.array(demos.timing.reference_knots_s))
+    model.config = dataclasses.replace(model.config, segment_timing=timing.to_dict() if timing else {})
+    if timing:
+        return timing.describe()
+    return "one for every scene, the median's (a per-scene timing did not predict held-out demonstrations better)"
+
+
+def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstrations,
+                 log=None) -> tuple[float, torch.Tensor]:
     """Fits the gating and the trajectory generator to the latents that inference finds for
     every demonstration's image (the scene networks and endpoints stay as trained); returns
-    the final motion MSE. Training and prediction then feed the motion the same kind of latent."""
+    the final motion MSE and those latents (B, N, D). Training and prediction then feed the
+    motion the same kind of latent."""
     from cnfmp.core.inference import Predictor
 
     config = model.config
@@ -255,4 +282,4 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     for p in model.parameters():
         p.requires_grad_(False)
     model.eval()
-    return float(loss.item())
+    return float(loss.item()), latents
