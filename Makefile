@@ -45,6 +45,7 @@ bench: setup  ## benchmarks that print figures (see docs/benchmarks.md)
 	bash scripts/bench-convert.sh
 	bash scripts/bench-setup.sh
 	bash scripts/bench-startup.sh
+	bash scripts/bench-joint-space.sh
 
 table1: setup  ## the paper's Table I on our benchmark: every method trained and evaluated (~1 h on 2 cores)
 	$(CNFMP) benchmark table1 --out reports
