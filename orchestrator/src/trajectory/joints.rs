@@ -9,7 +9,7 @@
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use super::{Trajectory, TrajectoryError, check_finite, parse_error};
+use super::{Trajectory, TrajectoryError, check_finite, check_gripper_and_time, parse_error};
 
 /// One time step of a joint-space trajectory.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -69,16 +69,7 @@ impl JointTrajectory {
                 ));
             }
             check_finite(&field("joints"), &frame.joints)?;
-            check_finite(&field("gripper"), &[frame.gripper])?;
-            if !(0.0..=1.0).contains(&frame.gripper) {
-                return Err(TrajectoryError::new(field("gripper"), format!("{} is outside [0, 1] (1 = open)", frame.gripper)));
-            }
-            if i > 0 && frame.t <= self.frames[i - 1].t {
-                return Err(TrajectoryError::new(
-                    field("t"),
-                    format!("time {} s does not increase (frames[{}].t = {} s)", frame.t, i - 1, self.frames[i - 1].t),
-                ));
-            }
+            check_gripper_and_time(i, frame.gripper, frame.t, i.checked_sub(1).map(|j| self.frames[j].t))?;
         }
         Ok(())
     }

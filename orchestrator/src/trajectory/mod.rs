@@ -183,16 +183,7 @@ impl Trajectory {
             check_finite(&field("t"), &[frame.t])?;
             check_finite(&field("position"), frame.pose.position.as_slice())?;
             check_finite(&field("orientation"), frame.pose.orientation.coords.as_slice())?;
-            check_finite(&field("gripper"), &[frame.gripper])?;
-            if !(0.0..=1.0).contains(&frame.gripper) {
-                return Err(TrajectoryError::new(field("gripper"), format!("{} is outside [0, 1] (1 = open)", frame.gripper)));
-            }
-            if i > 0 && frame.t <= self.frames[i - 1].t {
-                return Err(TrajectoryError::new(
-                    field("t"),
-                    format!("time {} s does not increase (frames[{}].t = {} s)", frame.t, i - 1, self.frames[i - 1].t),
-                ));
-            }
+            check_gripper_and_time(i, frame.gripper, frame.t, i.checked_sub(1).map(|j| self.frames[j].t))?;
         }
         Ok(())
     }
@@ -266,6 +257,22 @@ fn check_finite(location: &str, values: &[f64]) -> Result<(), TrajectoryError> {
         None => Ok(()),
         Some(k) if values.len() == 1 => Err(TrajectoryError::new(location, format!("{} is not a finite number", values[k]))),
         Some(k) => Err(TrajectoryError::new(format!("{location}[{k}]"), format!("{} is not a finite number", values[k]))),
+    }
+}
+
+/// Frame `i`'s gripper (finite, in [0, 1]) and time `t` (s, after the previous frame's).
+fn check_gripper_and_time(i: usize, gripper: f64, t: f64, previous_t: Option<f64>) -> Result<(), TrajectoryError> {
+    let field = |name: &str| format!("frames[{i}].{name}");
+    check_finite(&field("gripper"), &[gripper])?;
+    if !(0.0..=1.0).contains(&gripper) {
+        return Err(TrajectoryError::new(field("gripper"), format!("{gripper} is outside [0, 1] (1 = open)")));
+    }
+    match previous_t {
+        Some(previous) if t <= previous => Err(TrajectoryError::new(
+            field("t"),
+            format!("time {t} s does not increase (frames[{}].t = {previous} s)", i - 1),
+        )),
+        _ => Ok(()),
     }
 }
 
