@@ -420,7 +420,7 @@ fn a_lerobot_recording_is_annotated_trained_and_predicted() {
     };
     bad(&train(&["--camera", "observation.images.wrist"]), "masks were made on camera");
     bad(&train(&["--motion-from", "observation.state"]), "lacks feature(s) observation.state");
-    bad(&train(&["--motion-names", "a,b,c,d,e,f,g"]), "not an end-effector pose");
+    bad(&train(&["--motion-names", "x,y,c,d,e,f,gripper"]), "neither an end-effector pose nor joint space");
     ok(&train(&[]), "train");
     let card = std::fs::read_to_string(model.join("README.md")).unwrap();
     assert!(card.contains("3 demonstrations with 2 gripper event(s)") && card.contains("(rotvec); gripper 0..") && card.contains(" read as 0..1"), "{card}");
