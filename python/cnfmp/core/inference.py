@@ -435,9 +435,10 @@ class Predictor:
             cues = torch.from_numpy(inputs.tilt_cues)[None]
             outputs = self.model.motion(self.times, latents, present[None], anchors, shading,
                                         cues)[0].numpy().astype(np.float64)
-            features = self.model.motion_latents(latents, anchors, present[None], shading).flatten().numpy()
         trajectory = decode_trajectory(outputs, self.config)
         if self.segment_timing is not None:  # from the median timeline to this scene's
+            with torch.no_grad():
+                features = self.model.motion_latents(latents, anchors, present[None], shading).flatten().numpy()
             trajectory = segment_timing.retime(trajectory, np.asarray(self.segment_timing.knots_s),
                                                self.segment_timing.knots(features), self.config.output_fps)
         decoded = time.perf_counter()
