@@ -119,7 +119,7 @@ class RecordedTiming:
     demo_knots_s: list[list[float] | None]
 
 
-def _warp(trajectory: np.ndarray, source_knots: np.ndarray, target_knots: np.ndarray, poses: bool) -> np.ndarray:
+def warp(trajectory: np.ndarray, source_knots: np.ndarray, target_knots: np.ndarray, poses: bool) -> np.ndarray:
     """`trajectory` (T, D) resampled at whole frames 0..target_knots[-1] so that its frame
     source_knots[k] lands on target_knots[k], linear in between (with `poses`, D = 8 and the
     quaternion part is renormalised; else every column is interpolated as it is)."""
@@ -156,7 +156,7 @@ def align_demonstrations(trajectories: list[np.ndarray], fps: float, poses: bool
         knots = np.array([[0, *events[b], len(trajectories[b]) - 1] for b in members], np.float64)
         target = np.median(knots, axis=0)
         for b, source in zip(members, knots):
-            aligned[b] = _warp(trajectories[b], source, target, poses)
+            aligned[b] = warp(trajectories[b], source, target, poses)
             moved[b] = float(np.abs(source - target).max()) / fps
         groups[count] = {"demos": members, "event_times_s": [float(t) / fps for t in target[1:-1]],
                          "duration_s": float(target[-1]) / fps}

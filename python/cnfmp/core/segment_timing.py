@@ -119,21 +119,22 @@ def fit(features: np.ndarray, knots_s: np.ndarray, reference_knots_s: np.ndarray
 
 
 def retime(trajectory: dict, from_knots_s: np.ndarray, to_knots_s: np.ndarray, fps: float) -> dict:
-    """A decoded trajectory (``{"t" (T,) s, then (T, ...) columns}``: position, orientation
-    as wxyz quaternions, joints, gripper) re-timed so that its time from_knots_s[k] falls at
-    to_knots_s[k], linear in between and shifted after the last knot, resampled at `fps`."""
+    """A decoded trajectory (``{"t" (T,) s at `fps`, "position" (T, 3), "orientation" (T, 4)
+    wxyz, "gripper" (T,)}``, or "joints" (T, J) in place of the pose) re-timed so that its
+    time from_knots_s[k] falls at to_knots_s[k], linear in between and shifted after the last
+    knot, resampled at `fps` (:func:`cnfmp.core.alignment.warp`, the warp alignment uses)."""
+    from cnfmp.core.alignment import warp
+
     times = np.asarray(trajectory["t"], np.float64)
     end = times[-1] + (to_knots_s[-1] - from_knots_s[-1])
-    new_times = np.arange(int(round(end * fps)) + 1) / fps
-    source = np.interp(new_times, np.append(to_knots_s, end), np.append(from_knots_s, times[-1]))
-    out = {"t": new_times}
-    for key, values in trajectory.items():
-        if key == "t":
-            continue
-        values = np.asarray(values, np.float64)
-        flat = values.reshape(len(times), -1)
-        resampled = np.stack([np.interp(source, times, column) for column in flat.T], axis=1)
-        if key == "orientation":  # interpolated componentwise between near frames: renormalise
-            resampled /= np.linalg.norm(resampled, axis=1, keepdims=True)
-        out[key] = resampled.reshape((len(new_times),) + values.shape[1:])
+    poses = "orientation" in trajectory
+    parts = ("position", "orientation", "gripper") if poses else ("joints", "gripper")
+    columns = [np.asarray(trajectory[part], np.float64).reshape(len(times), -1) for part in parts]
+    warped = warp(np.concatenate(columns, axis=1), np.append(from_knots_s, times[-1]) * fps,
+                  np.append(to_knots_s, end) * fps, poses)
+    out, start = {"t": np.arange(len(warped)) / fps}, 0
+    for part, column in zip(parts, columns):
+        out[part] = warped[:, start:start + column.shape[1]]
+        start += column.shape[1]
+    out["gripper"] = out["gripper"][:, 0]
     return out
