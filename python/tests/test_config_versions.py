@@ -32,7 +32,7 @@ def test_every_model_type_writes_the_current_config_version():
     assert JsonConfig.current_version() is None  # a class without the field has no versions
     for kind in models.model_types().values():
         config = kind.config_class()
-        version = 2 if isinstance(config, CnfmpConfig) else 1  # cnfmp changed two defaults in version 2
+        version = 3 if isinstance(config, CnfmpConfig) else 1  # cnfmp: defaults in 2, a field renamed in 3
         assert kind.config_class.current_version() == version and config.config_version == version
         assert json.loads(config.to_json())["config_version"] == version
 
@@ -41,13 +41,28 @@ def test_a_config_without_a_version_is_of_the_version_its_reader_says_and_writes
     path = write_config(tmp_path / "config.json", {"model_type": "cnfmp", "steps": 7})
     # A training config file: the current version, today's defaults.
     current = CnfmpConfig.from_file(path)
-    assert (current.config_version, current.anchored_centres, current.motion_shapes_latents) == (2, True, False)
+    assert (current.config_version, current.anchored_centres, current.motion_shapes_latents) == (3, True, False)
+    assert current.tool_axis_object is None  # training chooses
     # A model directory written before versions existed: version 1, upgraded with its defaults.
     old = CnfmpConfig.from_file(path, unversioned=1)
-    assert (old.config_version, old.steps, old.anchored_centres, old.motion_shapes_latents) == (2, 7, False, True)
+    assert (old.config_version, old.steps, old.anchored_centres, old.motion_shapes_latents) == (3, 7, False, True)
+    assert old.tool_axis_object == -1  # a version-1 model never read the tool axis apart
     for config in (current, old):
         again = CnfmpConfig.from_dict(json.loads(config.to_json()))
-        assert json.loads(again.to_json())["config_version"] == 2 and again == config
+        assert json.loads(again.to_json())["config_version"] == 3 and again == config
+
+
+def test_version_2_tilt_object_becomes_the_tool_axis_object_and_the_old_name_is_refused_now():
+    """Version 3 renamed the recipe's `tilt_object` to `tool_axis_object`, which training
+    chooses; a version-2 model keeps its slot, or none where it had none."""
+    base = {"config_version": 2, "num_objects": 2, "rotation_chart": "swing_twist", "shading_moments": True}
+    assert CnfmpConfig.from_dict({**base, "tilt_object": 1}).tool_axis_object == 1
+    assert CnfmpConfig.from_dict({**base, "tilt_object": -1}).tool_axis_object == -1
+    assert CnfmpConfig.from_dict({"config_version": 2}).tool_axis_object == -1
+    with pytest.raises(InputError, match=r"unknown field\(s\) tilt_object"):
+        CnfmpConfig.from_dict({"tilt_object": 1})
+    with pytest.raises(InputError, match="unknown field"):  # the new name in an old file is a mistake too
+        CnfmpConfig.from_dict({"config_version": 2, "tool_axis_object": 1, "tilt_object": 1})
 
 
 def test_version_1_model_directories_keep_the_defaults_they_were_trained_with(tmp_path):
@@ -75,12 +90,12 @@ def test_version_1_model_directories_keep_the_defaults_they_were_trained_with(tm
 
 
 def test_newer_and_malformed_versions_are_refused(tmp_path):
-    newer = write_config(tmp_path / "newer.json", {"config_version": 3, "steps": 7})
-    with pytest.raises(InputError, match=r"newer.json: config_version 3 was written by a newer cnfmp.*update cnfmp"):
+    newer = write_config(tmp_path / "newer.json", {"config_version": 4, "steps": 7})
+    with pytest.raises(InputError, match=r"newer.json: config_version 4 was written by a newer cnfmp.*update cnfmp"):
         CnfmpConfig.from_file(newer)
     # A newer file's new fields are not what is wrong with it: the version is named first.
     with pytest.raises(InputError, match="newer cnfmp"):
-        CnfmpConfig.from_dict({"config_version": 3, "a_field_of_version_3": 1})
+        CnfmpConfig.from_dict({"config_version": 4, "a_field_of_version_4": 1})
     for bad in (0, -1, "1", 1.0, True, None):
         with pytest.raises(InputError, match="config_version must be a whole number >= 1"):
             CnfmpConfig.from_dict({"config_version": bad})
@@ -161,7 +176,7 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     saved = tmp_path / "today"
     saved.mkdir()
     models.save_model(model, str(saved))
-    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 2
+    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 3
     old = tmp_path / "before-versions"
     shutil.copytree(saved, old)
     values = json.loads((old / models.CONFIG_FILE).read_text())
@@ -175,15 +190,15 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     np.testing.assert_array_equal(one["weights"], two["weights"])
     assert one["object_mse"] == two["object_mse"]
 
-    # Were the current version 3, the directory without the key would be upgraded from
-    # version 1 (not taken as current) through 2, and the one with it from 2.
+    # Were the current version 4, the directory without the key would be upgraded from
+    # version 1 (not taken as current) through 2 and 3, and the one with it from 3.
     upgraded = []
-    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 3))
+    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 4))
     monkeypatch.setattr(CnfmpConfig, "upgrade",
                         classmethod(lambda cls, values, version, source: upgraded.append(version) or values))
-    assert models.read_config(str(old)).config_version == 3 and upgraded == [1, 2]
-    assert models.read_config(str(saved)).config_version == 3 and upgraded == [1, 2, 2]
+    assert models.read_config(str(old)).config_version == 4 and upgraded == [1, 2, 3]
+    assert models.read_config(str(saved)).config_version == 4 and upgraded == [1, 2, 3, 3]
     monkeypatch.undo()
-    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 3))
-    with pytest.raises(InputError, match=r"config.json: config_version 2 .* retrain the model with `cnfmp train`"):
+    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 4))
+    with pytest.raises(InputError, match=r"config.json: config_version 3 .* retrain the model with `cnfmp train`"):
         models.read_config(str(saved))

@@ -581,9 +581,9 @@ def test_tilt_cues_measure_elongation_size_and_where_the_shaded_part_lies():
     np.testing.assert_array_equal(cues[2], np.zeros(5))  # slot 3 is absent
 
 
-def test_the_tilt_object_alone_sets_the_gripper_swing_and_survives_save_and_load(tmp_path):
+def test_the_tool_axis_object_alone_sets_the_gripper_swing_and_survives_save_and_load(tmp_path):
     config = CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False,
-                         shading_moments=True, rotation_chart="swing_twist", tilt_object=1)
+                         rotation_chart="swing_twist", tool_axis_object=1)
     torch.manual_seed(0)
     model = CnfmpModel(config, num_demos=2).eval()
     with torch.no_grad():  # an untrained tilt readout answers weakly; make it answer plainly
@@ -605,14 +605,14 @@ def test_the_tilt_object_alone_sets_the_gripper_swing_and_survives_save_and_load
         other = cues.clone()
         other[0, 0] = torch.tensor([-0.5, 0.4, 0.1, 0.02, 0.03])
         torch.testing.assert_close(swing(cues=other), swing(), rtol=0, atol=0)
-        # ...but every statistic of the tilt object does.
+        # ...but every statistic of the tool-axis object does.
         for k in range(5):
             moved = cues.clone()
             moved[0, 1, k] += 0.1
             assert (swing(cues=moved) - swing()).abs().max() > 1e-3, k
         with pytest.raises(ValueError, match="tilt cues"):
             model.motion(t, latents, both, anchors, shading)
-        with pytest.raises(InputError, match="the object the gripper tilts to meet"):
+        with pytest.raises(InputError, match="the scene has no object 2, whose mask the tool axis is read from"):
             model.motion(t, latents, torch.tensor([[True, False]]), anchors, shading, cues)
         model.tilt_mean.fill_(0.1)  # the standardisation is part of the saved model
         save_model(model, str(tmp_path))
@@ -621,13 +621,15 @@ def test_the_tilt_object_alone_sets_the_gripper_swing_and_survives_save_and_load
 
 
 @pytest.mark.parametrize("changes, message", [
-    (dict(tilt_object=1, rotation_chart="tangent"), 'tilt_object needs rotation_chart "swing_twist"'),
-    (dict(tilt_object=2, num_objects=2), "tilt_object is slot 2 but the model has only 2 object slot"),
-    (dict(tilt_object=1, num_objects=2, slot_can_be_absent=[False, True]), "which some demonstrations lack"),
-    (dict(tilt_object=-2), "tilt_object must be -1"),
+    (dict(tool_axis_object=1, rotation_chart="tangent"), 'tool_axis_object needs rotation_chart "swing_twist"'),
+    (dict(tool_axis_object=2, num_objects=2), "tool_axis_object is slot 2 but the model has only 2 object slot"),
+    (dict(tool_axis_object=1, num_objects=2, slot_can_be_absent=[False, True]), "which some demonstrations lack"),
+    (dict(tool_axis_object=-2), r"tool_axis_object must be null \(training chooses\), -1"),
+    (dict(tool_axis_object=True), "tool_axis_object must be null"),
+    (dict(tool_axis_object=0, joint_names=["j1"]), "a joint-space model has none"),
 ])
-def test_tilt_object_settings_that_cannot_work_are_refused(changes, message):
-    base = dict(anchored_centres=True, motion_shapes_latents=False, shading_moments=True, rotation_chart="swing_twist")
+def test_tool_axis_settings_that_cannot_work_are_refused(changes, message):
+    base = dict(rotation_chart="swing_twist")
     with pytest.raises(InputError, match=message):
         CnfmpConfig(**TINY, **{**base, **changes}).check()
 

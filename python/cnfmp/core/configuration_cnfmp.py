@@ -40,8 +40,7 @@ class CnfmpConfig(MotionConfig):
       seed's trajectory loss stays far above another seed's.
     - `num_endpoints` (4), `full_turns`, `shading_moments`, `rotation_chart`: for objects
       whose pose (not only position) the motion must read, as incline's ramp and block
-      (configs/core/incline_pick_place.json); `tilt_object` is that recipe's own path and
-      will go.
+      (configs/core/incline_pick_place.json).
     - The inference settings (`search_candidates`, `search_starts`, `refine_steps`, ...):
       latency against fit; they change predictions, not weights, so they may also be edited
       in a trained model's config.json.
@@ -51,8 +50,9 @@ class CnfmpConfig(MotionConfig):
     """
 
     #: Version 2: objects anchored on their masks' centroids, latents not shaped by the
-    #: motion, by default (version 1 had neither; :meth:`upgrade`).
-    config_version: int = 2
+    #: motion, by default (version 1 had neither). Version 3: `tilt_object`, a slot named by
+    #: the recipe, became `tool_axis_object`, chosen by training (:meth:`upgrade`).
+    config_version: int = 3
 
     # ---- what the model is for (from data) ----
     #: Object slots, in label order (label k of a mask = slot k-1). A scene may leave trailing
@@ -146,18 +146,18 @@ class CnfmpConfig(MotionConfig):
     #: and this is where the rising edge shows (docs/experiments.md: incline validation
     #: success 0.55 -> 0.825). Needs `anchored_centres`.
     shading_moments: bool = False
-    #: Slot (0-based, in label order) of the object whose surface the gripper tilts to meet,
-    #: or -1 for none (incline: 1, the ramp). With a slot, the two swing outputs of the
-    #: rotation (the tilt of the finger axis; needs `rotation_chart` "swing_twist") come from
-    #: a movement primitive of their own that reads only that object's mask statistics: its
-    #: centroid, shading moments, elongation, size and the offset of its shaded part
-    #: (:class:`cnfmp.core.data.SceneInputs`, "observations"), each standardised over the
-    #: training demonstrations. No latent enters the tilt. Why: with 20 demonstrations, a
-    #: tilt read through the gates from every latent memorises the demonstrations instead of
-    #: the slope, and fails on ramp yaws few of them show; ten image statistics do not
-    #: (docs/experiments.md, "The tilt from the ramp's mask statistics": incline validation
-    #: success 0.853 -> 0.97). Needs `anchored_centres` and `shading_moments`.
-    tilt_object: int = -1
+    #: Slot (0-based, in label order) of the object whose mask the direction of the tool axis
+    #: is read from, or -1 for none; None (the default) lets training choose it from the
+    #: demonstrations (:mod:`cnfmp.core.tool_axis`: the object whose mask statistics predict
+    #: the demonstrations' swing, when one does; the card says what it chose and why). With a
+    #: slot, the two swing outputs of the rotation (where the finger axis points; training
+    #: then sets `rotation_chart` "swing_twist") come from a movement primitive of their own
+    #: that reads only that object's mask statistics (:data:`cnfmp.core.data.OBSERVATION_NAMES`),
+    #: each standardised over the training demonstrations; no latent enters them. A tilt read
+    #: through the gated latents fits 20 demonstrations instead of the surface's pose; ten
+    #: statistics of one mask do not (docs/experiments.md, "The tilt from the ramp's mask
+    #: statistics"). Set -1 to keep the swing with the latents, or a slot to overrule the choice.
+    tool_axis_object: int | None = None
 
     #: Weight of a pull of each object's simplex weights towards the simplex centre (squared
     #: distance), in training and in inference alike. Directions of the latent that the image
@@ -269,10 +269,21 @@ class CnfmpConfig(MotionConfig):
     @classmethod
     def upgrade(cls, values: dict, version: int, source: str) -> dict:
         """Version 1 -> 2: the fields whose default changed get their version-1 value where
-        the file leaves them out."""
+        the file leaves them out. Version 2 -> 3: `tilt_object` is `tool_axis_object` (-1,
+        none, where the file leaves it out: a version-2 model never chose one)."""
         if version == 1:
             return {**VERSION_1_DEFAULTS, **values}
+        if version == 2:
+            values = dict(values)
+            if "tool_axis_object" not in values:  # both names: tilt_object is refused as unknown
+                values["tool_axis_object"] = values.pop("tilt_object", -1)
+            return values
         return super().upgrade(values, version, source)
+
+    @property
+    def tool_axis_slot(self) -> int:
+        """The slot the swing is read from, or -1 (also while training has not chosen yet)."""
+        return -1 if self.tool_axis_object is None else self.tool_axis_object
 
     def check(self, source: str = "config") -> None:
         """InputError for values no model can be built with."""
@@ -303,18 +314,23 @@ class CnfmpConfig(MotionConfig):
         if self.shading_moments and not self.anchored_centres:
             raise InputError(f"{source}: shading_moments needs anchored_centres (the motion reads the "
                              "shading beside the mask centroid)")
-        if not isinstance(self.tilt_object, int) or self.tilt_object < -1:
-            raise InputError(f"{source}: tilt_object must be -1 (none) or an object slot >= 0, got {self.tilt_object!r}")
+        slot = self.tool_axis_object
+        if slot is not None and (isinstance(slot, bool) or not isinstance(slot, int) or slot < -1):
+            raise InputError(f"{source}: tool_axis_object must be null (training chooses), -1 (none) or an "
+                             f"object slot >= 0, got {slot!r}")
+        slot = self.tool_axis_slot
         # num_objects is 0 until the config is fitted to demonstrations.
-        if 0 < self.num_objects <= self.tilt_object:
-            raise InputError(f"{source}: tilt_object is slot {self.tilt_object} but the model has only "
+        if 0 < self.num_objects <= slot:
+            raise InputError(f"{source}: tool_axis_object is slot {slot} but the model has only "
                              f"{self.num_objects} object slot(s)")
-        if 0 <= self.tilt_object < len(self.slot_can_be_absent) and self.slot_can_be_absent[self.tilt_object]:
-            raise InputError(f"{source}: tilt_object is slot {self.tilt_object}, which some demonstrations lack; "
-                             "the tilt needs that object in every scene")
-        if self.tilt_object >= 0 and (self.rotation_chart != "swing_twist" or not self.shading_moments):
-            raise InputError(f"{source}: tilt_object needs rotation_chart \"swing_twist\" (the tilt is its "
-                             "swing outputs) and shading_moments (the tilt reads the shading)")
+        if 0 <= slot < len(self.slot_can_be_absent) and self.slot_can_be_absent[slot]:
+            raise InputError(f"{source}: tool_axis_object is slot {slot}, which some demonstrations lack; "
+                             "the tool axis is read from that object's mask in every scene")
+        if slot >= 0 and self.rotation_chart != "swing_twist":
+            raise InputError(f"{source}: tool_axis_object needs rotation_chart \"swing_twist\" (the tool "
+                             "axis's direction is its swing outputs)")
+        if slot >= 0 and self.joint_names:
+            raise InputError(f"{source}: tool_axis_object reads a pose's swing; a joint-space model has none")
 
 
 @dataclass

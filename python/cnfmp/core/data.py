@@ -220,7 +220,7 @@ class SceneInputs:
             full image resolution, in the order of OBSERVATION_NAMES (:func:`observe_mask`;
             0 when absent): what the model reads of an object besides its latent (the
             centroids with the config's `anchored_centres`, the shading moments with
-            `shading_moments`, all ten for the tilt object with `tilt_object`).
+            `shading_moments`, all ten for the object of `tool_axis_object`).
         present: (N,) bool whether the slot's mask has any pixel at field resolution.
     """
 

@@ -22,9 +22,9 @@ the coarse mask (the centre prior), and is a projective function of the latent, 
 sees the table; or, with `anchored_centres`, it is that centroid plus a small latent offset,
 and the motion reads the centroid itself beside the latent (with `shading_moments`, also
 where the image inside the mask is darker, which tells a pose the template's turn cannot).
-With `tilt_object`, the gripper's tilt bypasses the latents: its own movement primitive reads
-that object's mask statistics alone (rotation in the swing-twist chart, whose swing is the
-tilt of the finger axis).
+With `tool_axis_object` (chosen by training), the direction of the tool axis bypasses the
+latents: its own movement primitive reads that object's mask statistics alone (rotation in
+the swing-twist chart, whose swing is the tilt of the finger axis).
 
 Coordinates are image coordinates in [-1, 1]^2 (x right, y down); time is normalised to [0, 1].
 """
@@ -48,7 +48,7 @@ from cnfmp.errors import InputError
 LINEAR_BOUND = 0.8
 RESIDUAL_BOUND = 0.15
 STRETCH_BOUND = 0.3
-#: Statistics of the tilt object that the tilt readout reads: centroid (2), shading moments
+#: Statistics of the tool-axis object that the tilt readout reads: centroid (2), shading moments
 #: (3) and tilt cues (5): the observations of :class:`cnfmp.core.data.SceneInputs`
 #: (:data:`cnfmp.core.data.OBSERVATION_NAMES`).
 TILT_FEATURES = 10
@@ -246,8 +246,8 @@ class CnfmpModel(nn.Module):
             #: How each object's shading moments (dx, dy, mean luminance) enter its latent for
             #: the motion: (N, D, 3).
             self.shading_embedding = nn.Parameter(0.5 * torch.randn(n, d, 3))
-        if config.tilt_object >= 0:
-            #: Mean and spread of the tilt object's statistics over the training
+        if config.tool_axis_slot >= 0:
+            #: Mean and spread of the tool-axis object's statistics over the training
             #: demonstrations, which standardise them: (TILT_FEATURES,) each.
             self.register_buffer("tilt_mean", torch.zeros(TILT_FEATURES))
             self.register_buffer("tilt_std", torch.ones(TILT_FEATURES))
@@ -360,7 +360,7 @@ class CnfmpModel(nn.Module):
                cues: torch.Tensor | None = None) -> torch.Tensor:
         """Normalised times (T,), object latents (B, N, D), their presence (B, N) bool and,
         for `anchored_centres`, their mask centroids (B, N, 2) (for `shading_moments` their
-        shading moments (B, N, 3), for `tilt_object` their tilt cues (B, N, 5)) -> generator
+        shading moments (B, N, 3), for `tool_axis_object` their tilt cues (B, N, 5)) -> generator
         outputs (B, T, 7): normalised position, rotation (rad, in the config's rotation_chart),
         gripper."""
         if self.training and not self.config.motion_shapes_latents:
@@ -370,7 +370,7 @@ class CnfmpModel(nn.Module):
         z_t = torch.einsum("tn,bnd->btd" if gates.dim() == 2 else "btn,bnd->btd", gates, latents)  # (B, T, D)
         basis = time_basis(t, self.config)
         outputs = self.generator(basis, z_t)
-        if self.config.tilt_object < 0:
+        if self.config.tool_axis_slot < 0:
             return outputs
         # The tilt readout's swing replaces the shared generator's (whose weights for those two
         # outputs then go unused: one generator for every model keeps the rest uniform).
@@ -380,15 +380,15 @@ class CnfmpModel(nn.Module):
 
     def tilt_statistics(self, anchors: torch.Tensor | None, shading: torch.Tensor | None,
                         cues: torch.Tensor | None, present: torch.Tensor | None) -> torch.Tensor:
-        """The tilt object's mask statistics (B, TILT_FEATURES), unstandardised: centroid,
+        """The tool-axis object's mask statistics (B, TILT_FEATURES), unstandardised: centroid,
         shading moments and tilt cues, from the per-object (B, N, 2), (B, N, 3), (B, N, 5)."""
-        slot = self.config.tilt_object
+        slot = self.config.tool_axis_slot
         if anchors is None or shading is None or cues is None:
-            raise ValueError("a model with tilt_object needs the masks' centroids, shading moments and tilt cues")
+            raise ValueError("a model with tool_axis_object needs the masks' centroids, shading moments and tilt cues")
         if present is not None and not bool(present[:, slot].all()):
             names = self.config.object_names
             name = f" ({names[slot]})" if slot < len(names) else ""
-            raise InputError(f"the scene has no object {slot + 1}{name}, the object the gripper tilts to meet")
+            raise InputError(f"the scene has no object {slot + 1}{name}, whose mask the tool axis is read from")
         return torch.cat([anchors[:, slot], shading[:, slot], cues[:, slot]], dim=-1)
 
     def motion_penalty(self) -> torch.Tensor:
@@ -396,17 +396,17 @@ class CnfmpModel(nn.Module):
         penalty, weighted by `generator_weight_decay`, that keeps the motion's response to
         its inputs no larger than the demonstrations need."""
         penalty = self.generator.sensitivity()
-        if self.config.tilt_object >= 0:
+        if self.config.tool_axis_slot >= 0:
             penalty = penalty + self.tilt_generator.sensitivity()
         return penalty
 
     def motion_parameters(self) -> list[nn.Parameter]:
         """The parameters that map object latents (and positions and shading moments, and
-        the tilt object's statistics) to the motion."""
+        the tool-axis object's statistics) to the motion."""
         extra = [self.table_projection, self.position_embedding] if self.config.anchored_centres else []
         if self.config.shading_moments:
             extra.append(self.shading_embedding)
-        if self.config.tilt_object >= 0:
+        if self.config.tool_axis_slot >= 0:
             extra += list(self.tilt_generator.parameters())
         return list(self.gating.parameters()) + list(self.generator.parameters()) + extra
 

@@ -73,25 +73,31 @@ class TaskObjectChoice:
         return f"{self.reason}; left-out error for 1..{self.available} objects: {errors}"
 
 
+def object_statistics(demos: core_data.Demonstrations, slot: int) -> tuple[np.ndarray, np.ndarray]:
+    """Slot `slot`'s mask statistics in every demonstration, standardised over the
+    demonstrations where the object is present: ((B, len(OBSERVATION_NAMES)) statistics, 0
+    where absent; (B,) bool presence). A statistic that never varies is centred, not scaled."""
+    stats = np.zeros((len(demos), len(core_data.OBSERVATION_NAMES)))
+    present = np.zeros(len(demos), bool)
+    for b in range(len(demos)):
+        mask = demos.masks[b] == slot + 1
+        if mask.any():
+            stats[b] = core_data.observe_mask(demos.images[b], mask)
+            present[b] = True
+    if not present.any():
+        return stats, present
+    mean = stats[present].mean(axis=0)
+    spread = stats[present].std(axis=0)
+    spread[spread < 1e-9] = 1.0
+    return np.where(present[:, None], (stats - mean) / spread, 0.0), present
+
+
 def _features(demos: core_data.Demonstrations, count: int) -> np.ndarray:
-    """(B, count * (len(OBSERVATION_NAMES) + 1)) the first `count` objects' mask statistics,
-    standardised over the demonstrations where present (0 where absent), and a presence
-    indicator per object."""
+    """(B, count * (len(OBSERVATION_NAMES) + 1)) the first `count` objects' standardised mask
+    statistics (:func:`object_statistics`) and a centred presence indicator per object."""
     columns = []
     for slot in range(count):
-        label = slot + 1
-        stats = np.zeros((len(demos), len(core_data.OBSERVATION_NAMES)))
-        present = np.zeros(len(demos))
-        for b in range(len(demos)):
-            mask = demos.masks[b] == label
-            if mask.any():
-                stats[b] = core_data.observe_mask(demos.images[b], mask)
-                present[b] = 1.0
-        seen = present > 0
-        mean = stats[seen].mean(axis=0)
-        spread = stats[seen].std(axis=0)
-        spread[spread < 1e-9] = 1.0
-        stats = np.where(seen[:, None], (stats - mean) / spread, 0.0)
+        stats, present = object_statistics(demos, slot)
         columns += [stats, (present - present.mean())[:, None]]
     return np.concatenate(columns, axis=1)
 
@@ -115,7 +121,7 @@ def _targets(demos: core_data.Demonstrations) -> np.ndarray:
     return (centred / spread[varying]).reshape(len(samples), -1)
 
 
-def _left_out_errors(features: np.ndarray, targets: np.ndarray) -> np.ndarray:
+def left_out_errors(features: np.ndarray, targets: np.ndarray) -> np.ndarray:
     """(B,) each demonstration's squared error (mean over the targets) when a ridge fit with
     intercept on the others predicts it, at the penalty of PENALTIES that does best overall."""
     b = len(features)
@@ -136,25 +142,32 @@ def _left_out_errors(features: np.ndarray, targets: np.ndarray) -> np.ndarray:
     return best
 
 
+def larger_p_value(errors: np.ndarray, baseline: np.ndarray) -> float:
+    """One-sided p-value of a paired t-test that `errors` (B,) are larger than `baseline`
+    (B,) on average, over the same demonstrations; 1 when they never differ."""
+    from scipy import stats
+
+    difference = errors - baseline
+    spread = difference.std(ddof=1)
+    if spread <= 1e-12:
+        return 1.0
+    return float(stats.t.sf(difference.mean() / (spread / np.sqrt(len(difference))), df=len(difference) - 1))
+
+
 def choose_task_objects(demos: core_data.Demonstrations) -> TaskObjectChoice:
     """How many of the demonstrations' labelled objects (in label order) the task is about,
     by the left-out test of this module's header. `demos`: trajectories as training reads
     them (aligned in time or not)."""
-    from scipy import stats
-
     available = max(len(names) for names in demos.objects)
     if available < 2 or len(demos) < MIN_DEMOS:
         why = "one object" if available < 2 else f"fewer than {MIN_DEMOS} demonstrations to test on"
         return TaskObjectChoice(available, available, (), None, f"every object kept ({why})")
     targets = _targets(demos)
-    errors = [_left_out_errors(_features(demos, count), targets) for count in range(1, available + 1)]
+    errors = [left_out_errors(_features(demos, count), targets) for count in range(1, available + 1)]
     means = tuple(float(e.mean()) for e in errors)
     best = int(np.argmin(means)) + 1
     if best < available:
-        difference = errors[-1] - errors[best - 1]  # positive: all the objects predict worse
-        spread = difference.std(ddof=1)
-        p = float(stats.t.sf(difference.mean() / (spread / np.sqrt(len(difference))), df=len(difference) - 1)) \
-            if spread > 1e-12 else 1.0
+        p = larger_p_value(errors[-1], errors[best - 1])  # all the objects against the best count
         if p < SIGNIFICANCE:
             return TaskObjectChoice(best, available, means, p,
                                     f"the first {best} of {available} objects kept: they predict left-out "

@@ -20,6 +20,7 @@ from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.layers import pixel_coords
 from cnfmp.core.modeling_cnfmp import CnfmpModel
 from cnfmp.core.motion import LossLog, demonstration_targets, motion_loss, time_basis
+from cnfmp.core.tool_axis import choose_tool_axis_object
 from cnfmp.errors import InputError
 
 #: Inference settings of the motion refit's latent fit (:func:`refit_motion`), in place of the
@@ -123,7 +124,7 @@ class _Draw:
         with torch.no_grad():  # the generator starts at the demonstrations' mean motion
             basis = time_basis(data.times, config)
             model.generator.mean.copy_(torch.linalg.lstsq(basis, data.targets.mean(dim=0)).solution)
-            if config.tilt_object >= 0:
+            if config.tool_axis_slot >= 0:
                 statistics = model.tilt_statistics(data.centre, data.shading, data.cues, data.present)
                 model.tilt_mean.copy_(statistics.mean(dim=0))
                 # A statistic that never varies (a uniform mask's shaded offset) stays unscaled.
@@ -189,7 +190,9 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
     time, and with several draws each draw's trajectory loss at the choice). `log(line)`
     receives progress lines (every ~5% of the steps)."""
     started = time.monotonic()
-    config = fit_config_to_data(config, demos)
+    config, tool_axis = choose_tool_axis(fit_config_to_data(config, demos), demos)
+    if log:
+        log(f"tool axis: {tool_axis}")
     data = TrainingSet(demos, config)
     choice = {}
     if config.draws == 1:
@@ -221,8 +224,24 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
     timing = fit_segment_timing(model, data, demos, latents)
     summary = {"steps": config.steps, "demos": len(data), "seconds": round(time.monotonic() - started, 1),
                "final_losses": {f"{name}_mse": value for name, value in final.items()},
-               "parameters": model.parameter_count(), **choice, **({"segment_timing": timing} if timing else {})}
+               "parameters": model.parameter_count(), "tool_axis": tool_axis, **choice,
+               **({"segment_timing": timing} if timing else {})}
     return model, summary
+
+
+def choose_tool_axis(config: CnfmpConfig, demos: core_data.Demonstrations) -> tuple[CnfmpConfig, str]:
+    """`config` with `tool_axis_object` chosen from `demos` where the config leaves it to
+    training (:mod:`cnfmp.core.tool_axis`; a chosen slot also sets the swing-twist chart its
+    readout needs), and one line saying how it was set."""
+    if config.tool_axis_object is not None:
+        slot = config.tool_axis_object
+        return config, (f"read from slot {slot + 1}'s mask (set by the config)" if slot >= 0
+                        else "read with the rest of the motion (set by the config)")
+    if config.in_joint_space:
+        return dataclasses.replace(config, tool_axis_object=-1), "none: the motion is in joint space"
+    choice = choose_tool_axis_object(demos)
+    chart = {"rotation_chart": "swing_twist"} if choice.slot >= 0 else {}
+    return dataclasses.replace(config, tool_axis_object=choice.slot, **chart), choice.reason
 
 
 def fit_segment_timing(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstrations,
