@@ -65,6 +65,21 @@ def test_version_2_tilt_object_becomes_the_tool_axis_object_and_the_old_name_is_
         CnfmpConfig.from_dict({"config_version": 2, "tool_axis_object": 1, "tilt_object": 1})
 
 
+def test_version_3_retires_fields_that_held_one_value_and_refuses_a_model_trained_otherwise(tmp_path):
+    from cnfmp.core.configuration_cnfmp import VERSION_3_RETIRED
+
+    kept = CnfmpConfig.from_dict({"config_version": 2, **VERSION_3_RETIRED})
+    assert kept == CnfmpConfig(tool_axis_object=-1)
+    path = write_config(tmp_path / "config.json", {"config_version": 2, "simplex_entropy_weight": 0.01})
+    with pytest.raises(InputError, match=r"config.json: simplex_entropy_weight is no longer a setting .* "
+                                         r"simplex_entropy_weight 0.0\); .* retrain it"):
+        CnfmpConfig.from_file(path)
+    with pytest.raises(InputError, match="gate_present_only is no longer a setting"):
+        CnfmpConfig.from_dict({"config_version": 2, "gate_present_only": False})
+    with pytest.raises(InputError, match=r"unknown field\(s\) gate_present_only"):  # not a field of today's files
+        CnfmpConfig.from_dict({"gate_present_only": True})
+
+
 def test_version_1_model_directories_keep_the_defaults_they_were_trained_with(tmp_path):
     """Version 2 turned anchored centres on and latent shaping off by default; a version-1
     file that left them out (written before the fields existed) loads as it was trained, and

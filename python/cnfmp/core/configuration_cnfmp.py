@@ -8,6 +8,7 @@ from the dataset and need not be set in a config file.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 
 from cnfmp.core.configuration_common import MotionConfig
@@ -21,6 +22,11 @@ NOGATE_MODEL_TYPE = "cnfmp-nogate"
 #: What a version-1 config (written before 2026-12-03) meant by leaving a field out: the
 #: defaults that version 2 changed. Upgrading fills them in, so older models load as trained.
 VERSION_1_DEFAULTS = {"anchored_centres": False, "motion_shapes_latents": True}
+#: Fields version 3 retired, each with the one behaviour that stayed: a version-2 file that
+#: holds that value loads without the field; any other value is refused (retrain the model).
+#: Every shipped model had these values (simplex_entropy_weight: no entropy bonus on the
+#: demonstrations' simplex weights; gate_present_only: an absent object's gate is zero).
+VERSION_3_RETIRED = {"simplex_entropy_weight": 0.0, "gate_present_only": True}
 
 
 @dataclass
@@ -165,10 +171,6 @@ class CnfmpConfig(MotionConfig):
     #: so the motion cannot read anything from them that inference would not reproduce.
     weight_prior_weight: float = 1e-3
 
-    #: Weight of an entropy bonus on the demonstrations' simplex weights: it keeps the
-    #: demonstrations inside their simplices, so the endpoints span beyond the observed
-    #: variations and new scenes just outside them stay reachable.
-    simplex_entropy_weight: float = 0.0
 
     # ---- motion ----
     #: Weight of the penalty on the generator's latent weights (mean square): a ridge that
@@ -179,12 +181,6 @@ class CnfmpConfig(MotionConfig):
     #: Whether the temporal gating is learned; False gives the ablation with constant, equal
     #: weights (z(t) = mean of the object latents).
     temporal_gating: bool = True
-    #: Whether the gating shares its weight among the objects present in the scene only: an
-    #: absent slot's weight is zero and the present ones are renormalised. Otherwise an absent
-    #: slot keeps its weight with its learned "absent" latent, and one time profile has to
-    #: serve scenes with and without the object (cup stacking's third cup: the motion then
-    #: cannot both reach that cup and hold still where it is missing).
-    gate_present_only: bool = True
     #: Whether the trajectory loss also moves the latents (joint shaping, as in the paper);
     #: False trains the motion on the latents the scene alone explains, so nothing the image
     #: cannot show steers the motion (the default since config version 2; True needs
@@ -270,13 +266,19 @@ class CnfmpConfig(MotionConfig):
     def upgrade(cls, values: dict, version: int, source: str) -> dict:
         """Version 1 -> 2: the fields whose default changed get their version-1 value where
         the file leaves them out. Version 2 -> 3: `tilt_object` is `tool_axis_object` (-1,
-        none, where the file leaves it out: a version-2 model never chose one)."""
+        none, where the file leaves it out: a version-2 model never chose one), and the
+        fields of VERSION_3_RETIRED go (refused unless they hold the behaviour that stayed)."""
         if version == 1:
             return {**VERSION_1_DEFAULTS, **values}
         if version == 2:
             values = dict(values)
             if "tool_axis_object" not in values:  # both names: tilt_object is refused as unknown
                 values["tool_axis_object"] = values.pop("tilt_object", -1)
+            for name, kept in VERSION_3_RETIRED.items():
+                if name in values and values.pop(name) != kept:
+                    raise InputError(f"{source}: {name} is no longer a setting (cnfmp now always trains as "
+                                     f"{name} {json.dumps(kept)}); this model was trained otherwise: retrain it "
+                                     "with `cnfmp train`")
             return values
         return super().upgrade(values, version, source)
 

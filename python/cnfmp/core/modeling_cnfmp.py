@@ -343,15 +343,15 @@ class CnfmpModel(nn.Module):
     # ---- motion ----
     def gates(self, t: torch.Tensor, present: torch.Tensor | None = None) -> torch.Tensor:
         """Temporal gating weights w(t): (T,) -> (T, N), rows summing to one (constant and
-        equal without temporal gating). With presence (B, N) bool and `gate_present_only`,
-        where a scene lacks an object: (B, T, N), the absent objects at zero and the present
-        ones sharing one."""
+        equal without temporal gating). With presence (B, N) bool, where a scene lacks an
+        object: (B, T, N), the absent objects at zero and the present ones sharing one (one
+        time profile could not serve scenes with and without an object: cup stacking's third
+        cup)."""
         scores = self.gating(time_basis(t, self.config))
         if not self.config.temporal_gating:
             scores = torch.zeros_like(scores)
-        # Every object present: the plain (T, N) weights, so models whose slots are never empty
-        # compute bit for bit as before the option existed.
-        if present is None or not self.config.gate_present_only or bool(present.all()):
+        # Every object present: the plain (T, N) weights.
+        if present is None or bool(present.all()):
             return torch.softmax(scores, dim=-1)
         return torch.softmax(torch.where(present[:, None, :], scores[None], float("-inf")), dim=-1)
 

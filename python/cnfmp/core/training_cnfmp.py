@@ -152,7 +152,6 @@ class _Draw:
             present = data.present[bt]
             weights = torch.softmax(model.demo_logits[bt], dim=-1)
             latents = model.latents(weights, present)
-            entropy = -(weights * torch.log(weights + 1e-9)).sum(dim=-1).mean()
             anchors = data.centre[bt]
             scene = model.scene(coords, latents, data.colour[bt], present, progress, anchors=anchors)
             composite, local = image_losses(model, scene, target, present, config.pixels_per_object)
@@ -171,7 +170,7 @@ class _Draw:
             loss = (config.image_weight * (composite + local) + motion + config.mask_prior_weight * mask_prior
                     + config.centre_prior_weight * centre_prior + config.weight_prior_weight * weight_prior
                     + config.generator_weight_decay * model.motion_penalty()
-                    + config.lipschitz_weight * lipschitz - config.simplex_entropy_weight * entropy)
+                    + config.lipschitz_weight * lipschitz)
             self.optimiser.zero_grad(set_to_none=True)
             loss.backward()
             self.optimiser.step()
