@@ -35,18 +35,18 @@ class CnfmpConfig(MotionConfig):
 
     For a new task, change nothing: `cnfmp train --dataset D --out M` fills the "(from
     data)" fields, chooses which labelled objects the task is about (`task_objects`) and
-    trains the default recipe (docs/experiments.md, "Anchored centres for every task", for
-    what it reaches on the benchmark tasks). What a user may reasonably change, and when:
+    whether the tool axis is read from one object's mask (`tool_axis_object`), and trains the
+    default recipe (docs/benchmarks.md, "Core models", for what it reaches on the benchmark
+    tasks). What a user may reasonably change, and when:
 
     - `steps` (2000): fewer for a quick look (the losses are printed as training goes), more
       when the trajectory loss is still falling at the end.
-    - `task_objects`: to overrule training's choice of the objects the task is about (the
-      first N labels; later ones are background), e.g. when only the first object matters.
+    - `task_objects`, `tool_axis_object`: to overrule training's choices (the card says what
+      it chose and why).
+    - `shading_moments`: when an object's pose shows in its shading rather than its outline
+      (incline's near-square ramp, configs/core/incline_pick_place.json); not yet a default.
     - `draws` (1): several initialisations, the one whose motion fits best going on, when a
       seed's trajectory loss stays far above another seed's.
-    - `num_endpoints` (4), `full_turns`, `shading_moments`, `rotation_chart`: for objects
-      whose pose (not only position) the motion must read, as incline's ramp and block
-      (configs/core/incline_pick_place.json).
     - The inference settings (`search_candidates`, `search_starts`, `refine_steps`, ...):
       latency against fit; they change predictions, not weights, so they may also be edited
       in a trained model's config.json.
