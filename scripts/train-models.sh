@@ -2,9 +2,9 @@
 # Reproduces the shipped core models under models/: for each task, a training dataset of the
 # paper's low-data size (wall 10, incline 20, cup 20, cube 30 demonstrations; 30 for
 # language_pick_place, which the paper does not table; drawer_place 4, the paper's Fig. 5, as a
-# cnfmp-3d model on scans (configs/core/drawer_place.json); training seeds from 0) and one seeded
-# `cnfmp train` run (seed 0 unless the recipe names another) with the default configuration,
-# or configs/core/<task>.json where it exists.
+# cnfmp-3d model on scans (configs/core/drawer_place.json); training seeds from 0) and one
+# `cnfmp train` run, seed 0, with the default configuration of the model type (configs/core/<task>.json
+# where one exists: only drawer_place's, which names its model type).
 # Two tasks train at a time (one torch thread each). Usage: scripts/train-models.sh [TASK ...]
 # Environment: MODELS_DIR (default models), DATASETS_DIR (default a temporary directory).
 set -euo pipefail
@@ -24,11 +24,9 @@ train_one() {
         target/release/cnfmp dataset generate --task "$task" --episodes "$n" --seed 0 --out "$datasets/$task-$n" >/dev/null
     fi
     rm -rf "$models/$task"
-    # A task-specific config where one is needed (language_pick_place: distractors are
-    # background; drawer_place: the model type of scans).
+    # drawer_place's file names the model type of scans; every other task has none.
     local config=()
     [[ -f configs/core/$task.json ]] && config=(--config "configs/core/$task.json")
-    # The seed is the config's (0 unless the recipe names the training seed it was chosen with).
     target/release/cnfmp train --dataset "$datasets/$task-$n" --out "$models/$task" "${config[@]}" \
         2> >(sed "s/^/[$task] /" >&2)
 }

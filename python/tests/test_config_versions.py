@@ -32,7 +32,7 @@ def test_every_model_type_writes_the_current_config_version():
     assert JsonConfig.current_version() is None  # a class without the field has no versions
     for kind in models.model_types().values():
         config = kind.config_class()
-        version = 3 if isinstance(config, CnfmpConfig) else 1  # cnfmp: defaults in 2, a field renamed in 3
+        version = 4 if isinstance(config, CnfmpConfig) else 1  # cnfmp: defaults in 2, fields renamed in 3 and 4
         assert kind.config_class.current_version() == version and config.config_version == version
         assert json.loads(config.to_json())["config_version"] == version
 
@@ -41,15 +41,16 @@ def test_a_config_without_a_version_is_of_the_version_its_reader_says_and_writes
     path = write_config(tmp_path / "config.json", {"model_type": "cnfmp", "steps": 7})
     # A training config file: the current version, today's defaults.
     current = CnfmpConfig.from_file(path)
-    assert (current.config_version, current.anchored_centres, current.motion_shapes_latents) == (3, True, False)
-    assert current.tool_axis_object is None  # training chooses
+    assert (current.config_version, current.anchored_centres, current.motion_shapes_latents) == (4, True, False)
+    assert current.tool_axis_object is None and current.observed_statistics == "shading"
     # A model directory written before versions existed: version 1, upgraded with its defaults.
     old = CnfmpConfig.from_file(path, unversioned=1)
-    assert (old.config_version, old.steps, old.anchored_centres, old.motion_shapes_latents) == (3, 7, False, True)
+    assert (old.config_version, old.steps, old.anchored_centres, old.motion_shapes_latents) == (4, 7, False, True)
     assert old.tool_axis_object == -1  # a version-1 model never read the tool axis apart
+    assert old.observed_statistics == "centroid"  # nor any mask statistic
     for config in (current, old):
         again = CnfmpConfig.from_dict(json.loads(config.to_json()))
-        assert json.loads(again.to_json())["config_version"] == 3 and again == config
+        assert json.loads(again.to_json())["config_version"] == 4 and again == config
 
 
 def test_version_2_tilt_object_becomes_the_tool_axis_object_and_the_old_name_is_refused_now():
@@ -69,7 +70,7 @@ def test_version_3_retires_fields_that_held_one_value_and_refuses_a_model_traine
     from cnfmp.core.configuration_cnfmp import VERSION_3_RETIRED
 
     kept = CnfmpConfig.from_dict({"config_version": 2, **VERSION_3_RETIRED})
-    assert kept == CnfmpConfig(tool_axis_object=-1)
+    assert kept == CnfmpConfig(tool_axis_object=-1, observed_statistics="centroid")
     path = write_config(tmp_path / "config.json", {"config_version": 2, "simplex_entropy_weight": 0.01})
     with pytest.raises(InputError, match=r"config.json: simplex_entropy_weight is no longer a setting .* "
                                          r"simplex_entropy_weight 0.0\); .* retrain it"):
@@ -78,6 +79,40 @@ def test_version_3_retires_fields_that_held_one_value_and_refuses_a_model_traine
         CnfmpConfig.from_dict({"config_version": 2, "gate_present_only": False})
     with pytest.raises(InputError, match=r"unknown field\(s\) gate_present_only"):  # not a field of today's files
         CnfmpConfig.from_dict({"gate_present_only": True})
+
+
+def test_version_3_shading_moments_become_the_observed_statistics_and_a_version_3_directory_loads(tmp_path):
+    """Version 4 replaced the switch `shading_moments` (default false) by `observed_statistics`
+    (default "shading"); a version-3 model directory, its weights' ``shading_embedding``
+    included, predicts as before."""
+    assert CnfmpConfig.from_dict({"config_version": 3, "shading_moments": True}).observed_statistics == "shading"
+    assert CnfmpConfig.from_dict({"config_version": 3, "shading_moments": False}).observed_statistics == "centroid"
+    assert CnfmpConfig.from_dict({"config_version": 3}).observed_statistics == "centroid"  # version 3's default
+    with pytest.raises(InputError, match="shading_moments must be true or false"):
+        CnfmpConfig.from_dict({"config_version": 3, "shading_moments": "yes"})
+    with pytest.raises(InputError, match=r"unknown field\(s\) shading_moments"):
+        CnfmpConfig.from_dict({"shading_moments": True})
+
+    from safetensors.torch import load_file, save_file
+
+    demos = tiny_demonstrations()
+    model, _ = training_cnfmp.train_model(demos, CnfmpConfig(**TINY))
+    saved, old = tmp_path / "today", tmp_path / "version-3"
+    saved.mkdir()
+    models.save_model(model, str(saved))
+    shutil.copytree(saved, old)
+    values = json.loads((old / models.CONFIG_FILE).read_text())
+    assert values.pop("observed_statistics") == "shading"
+    values.update(config_version=3, shading_moments=True)
+    (old / models.CONFIG_FILE).write_text(json.dumps(values, indent=2))
+    tensors = load_file(str(old / models.WEIGHTS_FILE))
+    tensors["shading_embedding"] = tensors.pop("statistics_embedding")
+    save_file(tensors, str(old / models.WEIGHTS_FILE))
+
+    assert models.read_config(str(old)) == models.read_config(str(saved))
+    one, two = (models.load_predictor(str(d)).predict(demos.images[1], demos.masks[1], seed=2) for d in (saved, old))
+    for key in ("position", "orientation", "gripper"):
+        np.testing.assert_array_equal(one["trajectory"][key], two["trajectory"][key])
 
 
 def test_version_1_model_directories_keep_the_defaults_they_were_trained_with(tmp_path):
@@ -105,12 +140,12 @@ def test_version_1_model_directories_keep_the_defaults_they_were_trained_with(tm
 
 
 def test_newer_and_malformed_versions_are_refused(tmp_path):
-    newer = write_config(tmp_path / "newer.json", {"config_version": 4, "steps": 7})
-    with pytest.raises(InputError, match=r"newer.json: config_version 4 was written by a newer cnfmp.*update cnfmp"):
+    newer = write_config(tmp_path / "newer.json", {"config_version": 5, "steps": 7})
+    with pytest.raises(InputError, match=r"newer.json: config_version 5 was written by a newer cnfmp.*update cnfmp"):
         CnfmpConfig.from_file(newer)
     # A newer file's new fields are not what is wrong with it: the version is named first.
     with pytest.raises(InputError, match="newer cnfmp"):
-        CnfmpConfig.from_dict({"config_version": 4, "a_field_of_version_4": 1})
+        CnfmpConfig.from_dict({"config_version": 5, "a_field_of_version_5": 1})
     for bad in (0, -1, "1", 1.0, True, None):
         with pytest.raises(InputError, match="config_version must be a whole number >= 1"):
             CnfmpConfig.from_dict({"config_version": bad})
@@ -191,7 +226,7 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     saved = tmp_path / "today"
     saved.mkdir()
     models.save_model(model, str(saved))
-    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 3
+    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 4
     old = tmp_path / "before-versions"
     shutil.copytree(saved, old)
     values = json.loads((old / models.CONFIG_FILE).read_text())
@@ -205,15 +240,15 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     np.testing.assert_array_equal(one["weights"], two["weights"])
     assert one["object_mse"] == two["object_mse"]
 
-    # Were the current version 4, the directory without the key would be upgraded from
-    # version 1 (not taken as current) through 2 and 3, and the one with it from 3.
+    # Were the current version 5, the directory without the key would be upgraded from
+    # version 1 (not taken as current) through 2, 3 and 4, and the one with it from 4.
     upgraded = []
-    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 4))
+    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 5))
     monkeypatch.setattr(CnfmpConfig, "upgrade",
                         classmethod(lambda cls, values, version, source: upgraded.append(version) or values))
-    assert models.read_config(str(old)).config_version == 4 and upgraded == [1, 2, 3]
-    assert models.read_config(str(saved)).config_version == 4 and upgraded == [1, 2, 3, 3]
+    assert models.read_config(str(old)).config_version == 5 and upgraded == [1, 2, 3, 4]
+    assert models.read_config(str(saved)).config_version == 5 and upgraded == [1, 2, 3, 4, 4]
     monkeypatch.undo()
-    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 4))
-    with pytest.raises(InputError, match=r"config.json: config_version 3 .* retrain the model with `cnfmp train`"):
+    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 5))
+    with pytest.raises(InputError, match=r"config.json: config_version 4 .* retrain the model with `cnfmp train`"):
         models.read_config(str(saved))

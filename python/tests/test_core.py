@@ -68,11 +68,12 @@ def test_a_few_steps_lower_the_losses(demos):
     def value(line, key):
         return float(line.rsplit(f"{key} ", 1)[1].split()[0])
 
-    # Over seeds 0-5, with torch's default and AVX2 kernels alike, the last logged values were
-    # at most 0.16 (image), 0.09 (object) and 0.50 (motion, which starts from a least-squares
-    # fit of the mean trajectory) of the first: 0.7 is a margin over the worst seed.
-    for key in ("image", "object", "motion"):
-        assert value(last, key) < 0.7 * value(first, key), (key, first, last)
+    # Over seeds 0-5 (2026-12-05, the default config of version 4 and version 2's alike), the
+    # last logged values were 0.09-0.14 (image), 0.04-0.06 (object) and 0.63-0.90 (motion:
+    # one batch's, from a least-squares fit of the mean trajectory and latents still moving)
+    # of the first: 0.3 and 0.95 are margins over the worst seed.
+    for key, most in (("image", 0.3), ("object", 0.3), ("motion", 0.95)):
+        assert value(last, key) < most * value(first, key), (key, first, last)
     # The refit on inferred latents starts from the trained generator and improves on it
     # (by 25-96% over the same seeds).
     assert value(refits[-1], "motion") < value(refits[0], "motion"), refits
@@ -132,9 +133,9 @@ def test_gating_shares_its_weight_among_the_present_objects_only(trained):
     other = latents.clone()
     other[0, 1] += 1.0
     alone = torch.tensor([[True, False]])
-    centroids, shading = torch.rand(1, 2, 2) * 2 - 1, torch.rand(1, 2, 3)
-    torch.testing.assert_close(model.motion(t, latents, alone, centroids, shading),
-                               model.motion(t, other, alone, centroids, shading))
+    observations = torch.rand(1, 2, len(core_data.OBSERVATION_NAMES)) * 2 - 1
+    torch.testing.assert_close(model.motion(t, latents, alone, observations),
+                               model.motion(t, other, alone, observations))
 
 
 def test_rotations_round_trip_through_the_tangent_space():
@@ -208,7 +209,8 @@ def test_save_and_load_give_identical_outputs(trained, tmp_path, demos):
     weights = torch.softmax(torch.randn(2, 2, 3), dim=-1)
     present = torch.ones(2, 2, dtype=torch.bool)
     colours = torch.rand(2, 2, 3)
-    centroids = torch.rand(2, 2, 2) * 2 - 1
+    observations = torch.rand(2, 2, len(core_data.OBSERVATION_NAMES)) * 2 - 1
+    centroids = observations[..., :2]
     with torch.no_grad():
         for m in (model, loaded):
             m.eval()
@@ -216,8 +218,8 @@ def test_save_and_load_give_identical_outputs(trained, tmp_path, demos):
                 for m in (model, loaded))
         torch.testing.assert_close(a, b, rtol=0, atol=0)
         t = torch.linspace(0, 1, 30)
-        torch.testing.assert_close(model.motion(t, model.latents(weights, present), present, centroids),
-                                   loaded.motion(t, loaded.latents(weights, present), present, centroids),
+        torch.testing.assert_close(model.motion(t, model.latents(weights, present), present, observations),
+                                   loaded.motion(t, loaded.latents(weights, present), present, observations),
                                    rtol=0, atol=0)
     one = Predictor(model).predict(demos.images[0], demos.masks[0])["trajectory"]["position"]
     two = Predictor(loaded).predict(demos.images[0], demos.masks[0])["trajectory"]["position"]
@@ -463,11 +465,13 @@ def test_full_turns_let_the_template_turn_all_the_way_round():
 
 def test_anchored_centres_follow_the_mask_and_carry_the_position_to_the_motion():
     torch.manual_seed(0)
-    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False),
-                       num_demos=2).eval()
+    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False,
+                                   observed_statistics="centroid"), num_demos=2).eval()
     latents = torch.randn(1, 2, TINY["latent_dim"])
     anchors = torch.tensor([[[0.2, -0.1], [-0.4, 0.3]]])
     moved = anchors + torch.tensor([[[0.1, 0.05], [0.0, 0.0]]])
+    statistics = torch.rand(1, 2, len(core_data.OBSERVATION_NAMES) - 2)
+    observed, moved_observed = (torch.cat([a, statistics], dim=-1) for a in (anchors, moved))
     t = torch.linspace(0, 1, 20)
     both, second_only = torch.ones(1, 2, dtype=torch.bool), torch.tensor([[False, True]])
     with torch.no_grad():
@@ -475,10 +479,14 @@ def test_anchored_centres_follow_the_mask_and_carry_the_position_to_the_motion()
         torch.testing.assert_close(model.object_centres(latents, moved) - model.object_centres(latents, anchors),
                                    moved - anchors)
         # The motion reads the centroid of a present object, not that of an absent one.
-        assert (model.motion(t, latents, both, moved) - model.motion(t, latents, both, anchors)).abs().max() > 1e-3
-        torch.testing.assert_close(model.motion(t, latents, second_only, moved),
-                                   model.motion(t, latents, second_only, anchors), rtol=0, atol=0)
-        with pytest.raises(ValueError, match="centroids"):
+        assert (model.motion(t, latents, both, moved_observed)
+                - model.motion(t, latents, both, observed)).abs().max() > 1e-3
+        torch.testing.assert_close(model.motion(t, latents, second_only, moved_observed),
+                                   model.motion(t, latents, second_only, observed), rtol=0, atol=0)
+        # "centroid": the other statistics do not reach the motion.
+        torch.testing.assert_close(model.motion(t, latents, both, torch.cat([anchors, statistics + 1], dim=-1)),
+                                   model.motion(t, latents, both, observed), rtol=0, atol=0)
+        with pytest.raises(ValueError, match="observations"):
             model.motion(t, latents, both)
 
 
@@ -512,10 +520,8 @@ def test_scene_inputs_hold_each_field_at_its_shape_and_the_observations_in_their
     assert inputs.observations[0, column("elongation_cos")] > 0.5  # wider than tall
     assert inputs.observations[0, column("luminance")] == pytest.approx(
         image[4:12, 6:30].astype(float).mean() / 255, abs=1e-6)
-    for name, columns in (("centre", slice(0, 2)), ("shading", slice(2, 5)), ("tilt_cues", slice(5, 10))):
-        part = getattr(inputs, name)
-        np.testing.assert_array_equal(part, inputs.observations[:, columns])
-        assert part.flags.c_contiguous and part.dtype == np.float32, name
+    np.testing.assert_array_equal(inputs.centre, inputs.observations[:, :2])
+    assert inputs.centre.flags.c_contiguous and inputs.centre.dtype == np.float32
     assert [core_data.OBSERVATION_NAMES[i] for i in range(2, 5)] == ["dark_dx", "dark_dy", "luminance"]
     with pytest.raises(dataclasses.FrozenInstanceError):
         inputs.present = np.zeros(3, bool)
@@ -528,8 +534,7 @@ def test_shading_moments_point_from_the_centroid_to_the_darker_side():
     labels[0:8, 0:8] = 2  # a square whose right-hand columns are in shadow
     image[0:8, 5:8] = 60
     inputs = core_data.scene_inputs(image, labels, 3, 16, 1)
-    shading = inputs.shading
-    assert shading.shape == (3, 3)
+    shading = inputs.observations[:, 2:5]
     np.testing.assert_allclose(shading[0], [0.0, 0.0, 200 / 255], atol=1e-6)
     dx, dy, luminance = shading[1]
     # Darkness-weighted centroid at column 6 (centre of columns 5..7) against 3.5: +2.5 px of 40.
@@ -538,25 +543,28 @@ def test_shading_moments_point_from_the_centroid_to_the_darker_side():
     np.testing.assert_array_equal(shading[2], [0.0, 0.0, 0.0])  # slot 3 is absent
 
 
-def test_shading_moments_reach_the_motion_and_need_anchored_centres():
+@pytest.mark.parametrize("observed, read", [("shading", range(2, 5)), ("all", range(2, 10))])
+def test_the_observed_statistics_and_no_others_reach_the_motion(observed, read):
     torch.manual_seed(0)
     model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False,
-                                   shading_moments=True), num_demos=2).eval()
-    assert any(p is model.shading_embedding for p in model.motion_parameters())
+                                   observed_statistics=observed), num_demos=2).eval()
+    assert any(p is model.statistics_embedding for p in model.motion_parameters())
     latents = torch.randn(1, 2, TINY["latent_dim"])
-    anchors = torch.tensor([[[0.2, -0.1], [-0.4, 0.3]]])
-    shading = torch.tensor([[[0.05, -0.02, 0.6], [0.0, 0.0, 0.4]]])
-    darker_left = shading * torch.tensor([[[-1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]])
+    observations = torch.rand(1, 2, len(core_data.OBSERVATION_NAMES)) * 0.4
     t = torch.linspace(0, 1, 20)
     both = torch.ones(1, 2, dtype=torch.bool)
     with torch.no_grad():
-        # Untrained, the generator's response is small, but it is there (ignored, it would be 0).
-        assert (model.motion(t, latents, both, anchors, shading)
-                - model.motion(t, latents, both, anchors, darker_left)).abs().max() > 1e-4
-        with pytest.raises(ValueError, match="shading moments"):
-            model.motion(t, latents, both, anchors)
-    with pytest.raises(InputError, match="shading_moments needs anchored_centres"):
-        CnfmpConfig(**{**TINY, "shading_moments": True, "anchored_centres": False}).check()
+        base = model.motion(t, latents, both, observations)
+        for column in range(2, len(core_data.OBSERVATION_NAMES)):
+            moved = observations.clone()
+            moved[0, 0, column] += 0.5
+            # Untrained, the generator's response is small, but it is there (ignored, it would be 0).
+            change = (model.motion(t, latents, both, moved) - base).abs().max()
+            assert (change > 1e-4) if column in read else (change == 0), core_data.OBSERVATION_NAMES[column]
+    with pytest.raises(InputError, match='observed_statistics .* needs anchored_centres'):
+        CnfmpConfig(**{**TINY, "observed_statistics": observed, "anchored_centres": False}).check()
+    with pytest.raises(InputError, match="observed_statistics must be one of centroid, shading, all"):
+        CnfmpConfig(**{**TINY, "observed_statistics": "colour"}).check()
 
 
 def test_tilt_cues_measure_elongation_size_and_where_the_shaded_part_lies():
@@ -565,8 +573,7 @@ def test_tilt_cues_measure_elongation_size_and_where_the_shaded_part_lies():
     labels[10:14, 4:36] = 1  # a wide bar, uniform: elongated along x, no shaded part
     labels[20:36, 20:36] = 2  # a square whose bottom rows are in shadow
     image[32:36, 20:36] = 90
-    cues = core_data.scene_inputs(image, labels, 3, 16, 1).tilt_cues
-    assert cues.shape == (3, 5)
+    cues = core_data.scene_inputs(image, labels, 3, 16, 1).observations[:, 5:]
     elongation_x, elongation_y, size, shaded_dx, shaded_dy = cues[0]
     assert elongation_x > 0.9 and abs(elongation_y) < 1e-6 and shaded_dx == shaded_dy == 0.0
     # The bar spans 32 px of 40 across: its spread is about 32 / sqrt(12) px.
@@ -592,8 +599,8 @@ def test_the_tool_axis_object_alone_sets_the_gripper_swing_and_survives_save_and
     t = torch.linspace(0, 1, 20)
     both = torch.ones(1, 2, dtype=torch.bool)
 
-    def swing(latents=latents, shading=shading, cues=cues, m=model):
-        return m.motion(t, latents, both, anchors, shading, cues)[..., 3:5]
+    def swing(latents=latents, cues=cues, m=model):
+        return m.motion(t, latents, both, torch.cat([anchors, shading, cues], dim=-1))[..., 3:5]
 
     with torch.no_grad():
         # No latent, and nothing of the other object, reaches the swing...
@@ -606,10 +613,10 @@ def test_the_tool_axis_object_alone_sets_the_gripper_swing_and_survives_save_and
             moved = cues.clone()
             moved[0, 1, k] += 0.1
             assert (swing(cues=moved) - swing()).abs().max() > 1e-3, k
-        with pytest.raises(ValueError, match="tilt cues"):
-            model.motion(t, latents, both, anchors, shading)
+        with pytest.raises(ValueError, match="observations"):
+            model.motion(t, latents, both)
         with pytest.raises(InputError, match="the scene has no object 2, whose mask the tool axis is read from"):
-            model.motion(t, latents, torch.tensor([[True, False]]), anchors, shading, cues)
+            model.motion(t, latents, torch.tensor([[True, False]]), torch.cat([anchors, shading, cues], dim=-1))
         model.tilt_mean.fill_(0.1)  # the standardisation is part of the saved model
         save_model(model, str(tmp_path))
         loaded = load_model(str(tmp_path))
@@ -782,16 +789,15 @@ def test_every_shipped_recipe_and_its_quick_overlay_build_a_valid_config():
 
     repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     recipes = sorted(glob.glob(os.path.join(repo, "configs", "core", "*.json")))
-    # Every task but incline_pick_place trains with the default config of its model type;
-    # drawer_place's file names only that type (cnfmp-3d, a model of scans).
-    assert [os.path.basename(r) for r in recipes] == ["drawer_place.json", "incline_pick_place.json"]
+    # Every task trains with the default config of its model type; drawer_place's file names
+    # only that type (cnfmp-3d, a model of scans).
+    assert [os.path.basename(r) for r in recipes] == ["drawer_place.json"]
     assert json.load(open(recipes[0])) == {"model_type": "cnfmp-3d"}
     from cnfmp.core import models as core_models
 
     core_models.model_type("cnfmp-3d").config_class.from_dict(json.load(open(recipes[0]))).check(recipes[0])
-    for layers in ([recipes[1]], [recipes[1], os.path.join(repo, "configs", "quick", "cnfmp.json")]):
-        values, source = training.read_configs(layers)
-        CnfmpConfig(**values).check(source)
+    values, source = training.read_configs([os.path.join(repo, "configs", "quick", "cnfmp.json")])
+    CnfmpConfig(**values).check(source)
     for model in glob.glob(os.path.join(repo, "models", "*", CONFIG_FILE)):
         if json.load(open(model)).get("model_type") == "cnfmp":
             load_model(os.path.dirname(model))

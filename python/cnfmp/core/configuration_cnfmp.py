@@ -27,6 +27,9 @@ VERSION_1_DEFAULTS = {"anchored_centres": False, "motion_shapes_latents": True}
 #: Every shipped model had these values (simplex_entropy_weight: no entropy bonus on the
 #: demonstrations' simplex weights; gate_present_only: an absent object's gate is zero).
 VERSION_3_RETIRED = {"simplex_entropy_weight": 0.0, "gate_present_only": True}
+#: The mask statistics the motion may read beside the centroid, by `observed_statistics`:
+#: which columns of the observations (:data:`cnfmp.core.data.OBSERVATION_NAMES`) they are.
+OBSERVED_STATISTICS = {"centroid": slice(2, 2), "shading": slice(2, 5), "all": slice(2, 10)}
 
 
 @dataclass
@@ -43,8 +46,9 @@ class CnfmpConfig(MotionConfig):
       when the trajectory loss is still falling at the end.
     - `task_objects`, `tool_axis_object`: to overrule training's choices (the card says what
       it chose and why).
-    - `shading_moments`: when an object's pose shows in its shading rather than its outline
-      (incline's near-square ramp, configs/core/incline_pick_place.json); not yet a default.
+    - `observed_statistics`: which of each object's mask statistics the motion reads
+      ("shading" by default; "centroid" when the image inside the masks says nothing about
+      the motion).
     - `draws` (1): several initialisations, the one whose motion fits best going on, when a
       seed's trajectory loss stays far above another seed's.
     - The inference settings (`search_candidates`, `search_starts`, `refine_steps`, ...):
@@ -57,8 +61,9 @@ class CnfmpConfig(MotionConfig):
 
     #: Version 2: objects anchored on their masks' centroids, latents not shaped by the
     #: motion, by default (version 1 had neither). Version 3: `tilt_object`, a slot named by
-    #: the recipe, became `tool_axis_object`, chosen by training (:meth:`upgrade`).
-    config_version: int = 3
+    #: the recipe, became `tool_axis_object`, chosen by training. Version 4: the switch
+    #: `shading_moments` became `observed_statistics`, "shading" by default (:meth:`upgrade`).
+    config_version: int = 4
 
     # ---- what the model is for (from data) ----
     #: Object slots, in label order (label k of a mask = slot k-1). A scene may leave trailing
@@ -143,15 +148,16 @@ class CnfmpConfig(MotionConfig):
     #: and language reached validation success 0.90-1.00 over the seeds tried (docs/
     #: experiments.md, "Anchored centres for every task").
     anchored_centres: bool = True
-    #: Whether the motion also reads, for each object, the first moment of the image's
-    #: darkness inside its coarse mask: the offset from the mask's centroid to its
-    #: darkness-weighted centroid (image coordinates) and the mask's mean luminance, through a
-    #: learned map into the latent space like the centroid's. Shaded faces and the parts
-    #: under an object's top show on one side of it, which tells a pose the template's turn
-    #: cannot: a near-square ramp's template turns with its yaw only modulo a quarter turn,
-    #: and this is where the rising edge shows (docs/experiments.md: incline validation
-    #: success 0.55 -> 0.825). Needs `anchored_centres`.
-    shading_moments: bool = False
+    #: Which of each object's mask statistics (:data:`cnfmp.core.data.OBSERVATION_NAMES`) the
+    #: motion reads beside its latent and centroid, through a learned linear map into the
+    #: latent space (one per object slot; needs `anchored_centres`): "centroid" (none more),
+    #: "shading" (the offset from the centroid to the darkness-weighted centroid and the mean
+    #: luminance) or "all" (also the elongation, the size and the shaded part's offset).
+    #: Shaded faces and the parts under an object's top show on one side of it, which tells a
+    #: pose the template's turn cannot: a near-square ramp's template turns with its yaw only
+    #: modulo a quarter turn, and the shading shows where the rising edge is (docs/
+    #: experiments.md, "Shading moments", "The tool axis chosen by training").
+    observed_statistics: str = "shading"
     #: Slot (0-based, in label order) of the object whose mask the direction of the tool axis
     #: is read from, or -1 for none; None (the default) lets training choose it from the
     #: demonstrations (:mod:`cnfmp.core.tool_axis`: the object whose mask statistics predict
@@ -267,7 +273,9 @@ class CnfmpConfig(MotionConfig):
         """Version 1 -> 2: the fields whose default changed get their version-1 value where
         the file leaves them out. Version 2 -> 3: `tilt_object` is `tool_axis_object` (-1,
         none, where the file leaves it out: a version-2 model never chose one), and the
-        fields of VERSION_3_RETIRED go (refused unless they hold the behaviour that stayed)."""
+        fields of VERSION_3_RETIRED go (refused unless they hold the behaviour that stayed).
+        Version 3 -> 4: `shading_moments` true is `observed_statistics` "shading", false or
+        left out (version 3's default) "centroid"."""
         if version == 1:
             return {**VERSION_1_DEFAULTS, **values}
         if version == 2:
@@ -279,6 +287,14 @@ class CnfmpConfig(MotionConfig):
                     raise InputError(f"{source}: {name} is no longer a setting (cnfmp now always trains as "
                                      f"{name} {json.dumps(kept)}); this model was trained otherwise: retrain it "
                                      "with `cnfmp train`")
+            return values
+        if version == 3:
+            values = dict(values)
+            if "observed_statistics" not in values:  # both names: shading_moments is refused as unknown
+                shading = values.pop("shading_moments", False)
+                if not isinstance(shading, bool):
+                    raise InputError(f"{source}: shading_moments must be true or false, got {shading!r}")
+                values["observed_statistics"] = "shading" if shading else "centroid"
             return values
         return super().upgrade(values, version, source)
 
@@ -313,9 +329,12 @@ class CnfmpConfig(MotionConfig):
                              "by the motion, the latents memorise each demonstration's position and the motion "
                              "ignores the mask centroid); for latents shaped by the motion set anchored_centres "
                              "false too")
-        if self.shading_moments and not self.anchored_centres:
-            raise InputError(f"{source}: shading_moments needs anchored_centres (the motion reads the "
-                             "shading beside the mask centroid)")
+        if self.observed_statistics not in OBSERVED_STATISTICS:
+            raise InputError(f"{source}: observed_statistics must be one of {', '.join(OBSERVED_STATISTICS)}, "
+                             f"got {self.observed_statistics!r}")
+        if self.observed_statistics != "centroid" and not self.anchored_centres:
+            raise InputError(f"{source}: observed_statistics {self.observed_statistics!r} needs anchored_centres "
+                             "(the motion reads the mask statistics beside the mask centroid); set it \"centroid\"")
         slot = self.tool_axis_object
         if slot is not None and (isinstance(slot, bool) or not isinstance(slot, int) or slot < -1):
             raise InputError(f"{source}: tool_axis_object must be null (training chooses), -1 (none) or an "

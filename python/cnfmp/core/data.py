@@ -219,8 +219,8 @@ class SceneInputs:
         observations: (N, len(OBSERVATION_NAMES)) float32 each object's mask statistics, at
             full image resolution, in the order of OBSERVATION_NAMES (:func:`observe_mask`;
             0 when absent): what the model reads of an object besides its latent (the
-            centroids with the config's `anchored_centres`, the shading moments with
-            `shading_moments`, all ten for the object of `tool_axis_object`).
+            centroids with the config's `anchored_centres`, the columns of its
+            `observed_statistics`, all ten for the object of `tool_axis_object`).
         present: (N,) bool whether the slot's mask has any pixel at field resolution.
     """
 
@@ -236,18 +236,6 @@ class SceneInputs:
         """(N, 2) float32 mask centroids in image coordinates (contiguous copy of
         ``observations[:, :2]``)."""
         return np.ascontiguousarray(self.observations[:, :2])
-
-    @property
-    def shading(self) -> np.ndarray:
-        """(N, 3) float32 shading moments: darkness-weighted offset (dx, dy) in image
-        coordinates and mean luminance in [0, 1] (contiguous copy of ``observations[:, 2:5]``)."""
-        return np.ascontiguousarray(self.observations[:, 2:5])
-
-    @property
-    def tilt_cues(self) -> np.ndarray:
-        """(N, 5) float32 tilt cues: elongation (2), size, shaded offset (2), image coordinates
-        (contiguous copy of ``observations[:, 5:10]``)."""
-        return np.ascontiguousarray(self.observations[:, 5:10])
 
 
 def observe_mask(image: np.ndarray, mask: np.ndarray) -> list[float]:

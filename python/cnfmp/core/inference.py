@@ -430,20 +430,18 @@ class Predictor:
         present = torch.from_numpy(inputs.present)
         with torch.no_grad():
             latents = self.model.latents(weights[None], present[None])
-            anchors = torch.from_numpy(inputs.centre)[None]
-            shading = torch.from_numpy(inputs.shading)[None]
-            cues = torch.from_numpy(inputs.tilt_cues)[None]
-            outputs = self.model.motion(self.times, latents, present[None], anchors, shading,
-                                        cues)[0].numpy().astype(np.float64)
+            observations = torch.from_numpy(inputs.observations)[None]
+            outputs = self.model.motion(self.times, latents, present[None], observations)[0].numpy().astype(np.float64)
         trajectory = decode_trajectory(outputs, self.config)
         if self.segment_timing is not None:  # from the median timeline to this scene's
             with torch.no_grad():
-                features = self.model.motion_latents(latents, anchors, present[None], shading).flatten().numpy()
+                features = self.model.motion_latents(latents, observations, present[None]).flatten().numpy()
             trajectory = segment_timing.retime(trajectory, np.asarray(self.segment_timing.knots_s),
                                                self.segment_timing.knots(features), self.config.output_fps)
         decoded = time.perf_counter()
         fit = self.scene_fit(latents, torch.from_numpy(inputs.colour), present,
-                             torch.from_numpy(inputs.rgb.reshape(-1, 3)), inputs.masks, anchors, map_objects, rendered)
+                             torch.from_numpy(inputs.rgb.reshape(-1, 3)), inputs.masks, observations[..., :2], map_objects,
+                             rendered)
         return {"trajectory": trajectory, "weights": weights.numpy(), "present": inputs.present,
                 "object_mse": mse, "object_psnr_db": [None if m is None else psnr_db(m) for m in mse],
                 **fit, "seconds": {"infer": infer_s, "decode": decoded - decoding}}

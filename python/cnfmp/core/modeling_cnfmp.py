@@ -20,8 +20,9 @@ or blue cube, and every geometric difference between scenes must go through the 
 so the latent carries geometry. The deformation's translation is anchored to the centroid of
 the coarse mask (the centre prior), and is a projective function of the latent, as the camera
 sees the table; or, with `anchored_centres`, it is that centroid plus a small latent offset,
-and the motion reads the centroid itself beside the latent (with `shading_moments`, also
-where the image inside the mask is darker, which tells a pose the template's turn cannot).
+and the motion reads the centroid itself beside the latent, with the mask statistics of
+`observed_statistics` (by default where the image inside the mask is darker, which tells a
+pose the template's turn cannot).
 With `tool_axis_object` (chosen by training), the direction of the tool axis bypasses the
 latents: its own movement primitive reads that object's mask statistics alone (rotation in
 the swing-twist chart, whose swing is the tilt of the finger axis).
@@ -36,7 +37,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from cnfmp.core.configuration_cnfmp import CnfmpConfig
+from cnfmp.core.configuration_cnfmp import OBSERVED_STATISTICS, CnfmpConfig
 from cnfmp.core.layers import (FilmMLP, LipschitzLinear, encoded_size, fourier_features, plain_mlp,
                                regular_grid)
 from cnfmp.core.motion import BasisGenerator, motion_dim, time_basis, time_basis_size
@@ -48,10 +49,15 @@ from cnfmp.errors import InputError
 LINEAR_BOUND = 0.8
 RESIDUAL_BOUND = 0.15
 STRETCH_BOUND = 0.3
-#: Statistics of the tool-axis object that the tilt readout reads: centroid (2), shading moments
-#: (3) and tilt cues (5): the observations of :class:`cnfmp.core.data.SceneInputs`
-#: (:data:`cnfmp.core.data.OBSERVATION_NAMES`).
+#: Statistics of the tool-axis object that the tilt readout reads: all its observations
+#: (:attr:`cnfmp.core.data.SceneInputs.observations`, :data:`cnfmp.core.data.OBSERVATION_NAMES`).
 TILT_FEATURES = 10
+
+
+def observed_width(config: CnfmpConfig) -> int:
+    """How many of each object's mask statistics the motion reads beside its centroid."""
+    columns = OBSERVED_STATISTICS[config.observed_statistics]
+    return columns.stop - columns.start
 
 
 class ObjectField(nn.Module):
@@ -242,10 +248,11 @@ class CnfmpModel(nn.Module):
             self.table_projection = nn.Parameter(torch.zeros(2))
             #: How each object's table position enters its latent for the motion: (N, D, 3).
             self.position_embedding = nn.Parameter(0.5 * torch.randn(n, d, 3))
-        if config.shading_moments:
-            #: How each object's shading moments (dx, dy, mean luminance) enter its latent for
-            #: the motion: (N, D, 3).
-            self.shading_embedding = nn.Parameter(0.5 * torch.randn(n, d, 3))
+        statistics = observed_width(config)
+        if statistics:
+            #: How each object's observed mask statistics enter its latent for the motion:
+            #: (N, D, S), S the columns of `observed_statistics`.
+            self.statistics_embedding = nn.Parameter(0.5 * torch.randn(n, d, statistics))
         if config.tool_axis_slot >= 0:
             #: Mean and spread of the tool-axis object's statistics over the training
             #: demonstrations, which standardise them: (TILT_FEATURES,) each.
@@ -266,22 +273,23 @@ class CnfmpModel(nn.Module):
         return torch.stack([field.object_centre(latents[:, k], slot_anchor(anchors, k))
                             for k, field in enumerate(self.objects)], dim=1)
 
-    def motion_latents(self, latents: torch.Tensor, anchors: torch.Tensor | None, present: torch.Tensor | None,
-                       shading: torch.Tensor | None = None):
+    def motion_latents(self, latents: torch.Tensor, observations: torch.Tensor | None,
+                       present: torch.Tensor | None):
         """The latents the motion reads (B, N, D): with `anchored_centres`, each present
-        object's latent plus its embedded table position, from its mask centroid (B, N, 2),
-        and with `shading_moments` its embedded shading moments (B, N, 3)."""
+        object's latent plus its embedded table position, from its mask centroid, and its
+        embedded mask statistics of `observed_statistics`, from its observations (B, N,
+        len(OBSERVATION_NAMES), :attr:`cnfmp.core.data.SceneInputs.observations`)."""
         if not self.config.anchored_centres:
             return latents
-        if anchors is None:
-            raise ValueError("a model with anchored_centres needs the mask centroids")
+        if observations is None:
+            raise ValueError("a model with anchored_centres needs the masks' observations")
+        anchors = observations[..., :2]
         homogeneous = torch.cat([anchors, torch.ones_like(anchors[..., :1])], dim=-1)
         table = homogeneous / (1.0 + anchors @ self.table_projection)[..., None]
         observed = torch.einsum("ndk,bnk->bnd", self.position_embedding, table)
-        if self.config.shading_moments:
-            if shading is None:
-                raise ValueError("a model with shading_moments needs the masks' shading moments")
-            observed = observed + torch.einsum("ndk,bnk->bnd", self.shading_embedding, shading)
+        if observed_width(self.config):
+            statistics = observations[..., OBSERVED_STATISTICS[self.config.observed_statistics]]
+            observed = observed + torch.einsum("ndk,bnk->bnd", self.statistics_embedding, statistics)
         if present is not None:
             observed = observed * present[..., None]
         return latents + observed
@@ -356,16 +364,14 @@ class CnfmpModel(nn.Module):
         return torch.softmax(torch.where(present[:, None, :], scores[None], float("-inf")), dim=-1)
 
     def motion(self, t: torch.Tensor, latents: torch.Tensor, present: torch.Tensor | None = None,
-               anchors: torch.Tensor | None = None, shading: torch.Tensor | None = None,
-               cues: torch.Tensor | None = None) -> torch.Tensor:
+               observations: torch.Tensor | None = None) -> torch.Tensor:
         """Normalised times (T,), object latents (B, N, D), their presence (B, N) bool and,
-        for `anchored_centres`, their mask centroids (B, N, 2) (for `shading_moments` their
-        shading moments (B, N, 3), for `tool_axis_object` their tilt cues (B, N, 5)) -> generator
-        outputs (B, T, 7): normalised position, rotation (rad, in the config's rotation_chart),
-        gripper."""
+        for `anchored_centres` or `tool_axis_object`, their masks' observations (B, N,
+        len(OBSERVATION_NAMES)) -> generator outputs (B, T, 7): normalised position, rotation
+        (rad, in the config's rotation_chart), gripper."""
         if self.training and not self.config.motion_shapes_latents:
             latents = latents.detach()
-        latents = self.motion_latents(latents, anchors, present, shading)
+        latents = self.motion_latents(latents, observations, present)
         gates = self.gates(t, present)
         z_t = torch.einsum("tn,bnd->btd" if gates.dim() == 2 else "btn,bnd->btd", gates, latents)  # (B, T, D)
         basis = time_basis(t, self.config)
@@ -374,22 +380,21 @@ class CnfmpModel(nn.Module):
             return outputs
         # The tilt readout's swing replaces the shared generator's (whose weights for those two
         # outputs then go unused: one generator for every model keeps the rest uniform).
-        features = (self.tilt_statistics(anchors, shading, cues, present) - self.tilt_mean) / self.tilt_std
+        features = (self.tilt_statistics(observations, present) - self.tilt_mean) / self.tilt_std
         swing = self.tilt_generator(basis, features[:, None].expand(-1, len(t), -1))
         return torch.cat([outputs[..., :3], swing, outputs[..., 5:]], dim=-1)
 
-    def tilt_statistics(self, anchors: torch.Tensor | None, shading: torch.Tensor | None,
-                        cues: torch.Tensor | None, present: torch.Tensor | None) -> torch.Tensor:
-        """The tool-axis object's mask statistics (B, TILT_FEATURES), unstandardised: centroid,
-        shading moments and tilt cues, from the per-object (B, N, 2), (B, N, 3), (B, N, 5)."""
+    def tilt_statistics(self, observations: torch.Tensor | None, present: torch.Tensor | None) -> torch.Tensor:
+        """The tool-axis object's mask statistics (B, TILT_FEATURES), unstandardised, from the
+        objects' observations (B, N, TILT_FEATURES)."""
         slot = self.config.tool_axis_slot
-        if anchors is None or shading is None or cues is None:
-            raise ValueError("a model with tool_axis_object needs the masks' centroids, shading moments and tilt cues")
+        if observations is None:
+            raise ValueError("a model with tool_axis_object needs the masks' observations")
         if present is not None and not bool(present[:, slot].all()):
             names = self.config.object_names
             name = f" ({names[slot]})" if slot < len(names) else ""
             raise InputError(f"the scene has no object {slot + 1}{name}, whose mask the tool axis is read from")
-        return torch.cat([anchors[:, slot], shading[:, slot], cues[:, slot]], dim=-1)
+        return observations[:, slot]
 
     def motion_penalty(self) -> torch.Tensor:
         """Mean squared latent (and tilt-statistic) weight of the motion's generators: the
@@ -401,11 +406,11 @@ class CnfmpModel(nn.Module):
         return penalty
 
     def motion_parameters(self) -> list[nn.Parameter]:
-        """The parameters that map object latents (and positions and shading moments, and
+        """The parameters that map object latents (and positions and mask statistics, and
         the tool-axis object's statistics) to the motion."""
         extra = [self.table_projection, self.position_embedding] if self.config.anchored_centres else []
-        if self.config.shading_moments:
-            extra.append(self.shading_embedding)
+        if observed_width(self.config):
+            extra.append(self.statistics_embedding)
         if self.config.tool_axis_slot >= 0:
             extra += list(self.tilt_generator.parameters())
         return list(self.gating.parameters()) + list(self.generator.parameters()) + extra
@@ -416,9 +421,12 @@ class CnfmpModel(nn.Module):
 
     @classmethod
     def from_state(cls, config: CnfmpConfig, state: dict) -> "CnfmpModel":
-        """An untrained model shaped for the saved tensors `state` (its demonstration count)."""
+        """An untrained model shaped for the saved tensors `state` (its demonstration count).
+        Renames in `state` the tensor that config version 3 called ``shading_embedding``."""
         if "demo_logits" not in state:
             raise InputError("the weights have no demo_logits tensor; not a cnfmp model")
+        if "shading_embedding" in state:
+            state["statistics_embedding"] = state.pop("shading_embedding")
         return cls(config, num_demos=state["demo_logits"].shape[0])
 
     def parameter_count(self, include_demos: bool = False) -> int:

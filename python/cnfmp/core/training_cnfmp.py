@@ -59,9 +59,8 @@ class TrainingSet:
         self.rgb = torch.from_numpy(np.stack([s.rgb.reshape(-1, 3) for s in scenes]))  # (B, R*R, 3)
         self.colour = torch.from_numpy(np.stack([s.colour for s in scenes]))  # (B, N, 3)
         self.present = torch.from_numpy(np.stack([s.present for s in scenes]))  # (B, N)
-        self.centre = torch.from_numpy(np.stack([s.centre for s in scenes]))  # (B, N, 2)
-        self.shading = torch.from_numpy(np.stack([s.shading for s in scenes]))  # (B, N, 3)
-        self.cues = torch.from_numpy(np.stack([s.tilt_cues for s in scenes]))  # (B, N, 5)
+        self.observations = torch.from_numpy(np.stack([s.observations for s in scenes]))  # (B, N, 10)
+        self.centre = self.observations[..., :2]  # (B, N, 2) mask centroids
         # Coarse label per field pixel (0 background, k object k), for the weak mask prior.
         labels = np.zeros((len(scenes), res * res), np.int64)
         for b, s in enumerate(scenes):
@@ -125,7 +124,7 @@ class _Draw:
             basis = time_basis(data.times, config)
             model.generator.mean.copy_(torch.linalg.lstsq(basis, data.targets.mean(dim=0)).solution)
             if config.tool_axis_slot >= 0:
-                statistics = model.tilt_statistics(data.centre, data.shading, data.cues, data.present)
+                statistics = model.tilt_statistics(data.observations, data.present)
                 model.tilt_mean.copy_(statistics.mean(dim=0))
                 # A statistic that never varies (a uniform mask's shaded offset) stays unscaled.
                 model.tilt_std.copy_(statistics.std(dim=0, unbiased=False).clamp(min=1e-6))
@@ -160,8 +159,7 @@ class _Draw:
             label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
             mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
             frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
-            motion = motion_loss(model.config, model.motion(data.times[frames], latents, present, anchors, data.shading[bt],
-                                                            data.cues[bt]),
+            motion = motion_loss(model.config, model.motion(data.times[frames], latents, present, data.observations[bt]),
                                  data.targets[bt][:, frames])
             lipschitz = model.lipschitz_penalty()
             centre_err = ((model.object_centres(latents, anchors) - anchors) ** 2).sum(dim=-1)
@@ -251,7 +249,7 @@ def fit_segment_timing(model: CnfmpModel, data: TrainingSet, demos: core_data.De
     if demos.timing is None:
         return None
     with torch.no_grad():
-        features = model.motion_latents(latents, data.centre, data.present, data.shading).flatten(1).numpy()
+        features = model.motion_latents(latents, data.observations, data.present).flatten(1).numpy()
     members = [b for b, knots in enumerate(demos.timing.demo_knots_s) if knots is not None]
     if len(members) < segment_timing.MIN_DEMOS:
         return (f"one for every scene, the median's ({len(members)} demonstrations with the task's gripper events; "
@@ -288,7 +286,7 @@ def refit_motion(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstr
     steps = config.motion_refit_steps
     schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 0.5 * (1 + np.cos(np.pi * min(step / steps, 1.0))))
     for step in range(steps):
-        loss = motion_loss(model.config, model.motion(data.times, latents, data.present, data.centre, data.shading, data.cues),
+        loss = motion_loss(model.config, model.motion(data.times, latents, data.present, data.observations),
                            data.targets)
         penalty = config.generator_weight_decay * model.motion_penalty()
         optimiser.zero_grad(set_to_none=True)
