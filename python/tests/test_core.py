@@ -549,6 +549,10 @@ def test_the_observed_statistics_and_no_others_reach_the_motion(observed, read):
     model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False,
                                    observed_statistics=observed), num_demos=2).eval()
     assert any(p is model.statistics_embedding for p in model.motion_parameters())
+    from cnfmp.core.configuration_cnfmp import OBSERVED_STATISTICS
+    from cnfmp.core.modeling_cnfmp import OBSERVED_COLUMNS
+
+    assert tuple(OBSERVED_COLUMNS) == OBSERVED_STATISTICS  # every value the config accepts has its columns
     latents = torch.randn(1, 2, TINY["latent_dim"])
     observations = torch.rand(1, 2, len(core_data.OBSERVATION_NAMES)) * 0.4
     t = torch.linspace(0, 1, 20)

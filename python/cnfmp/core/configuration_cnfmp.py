@@ -27,9 +27,9 @@ VERSION_1_DEFAULTS = {"anchored_centres": False, "motion_shapes_latents": True}
 #: Every shipped model had these values (simplex_entropy_weight: no entropy bonus on the
 #: demonstrations' simplex weights; gate_present_only: an absent object's gate is zero).
 VERSION_3_RETIRED = {"simplex_entropy_weight": 0.0, "gate_present_only": True}
-#: The mask statistics the motion may read beside the centroid, by `observed_statistics`:
-#: which columns of the observations (:data:`cnfmp.core.data.OBSERVATION_NAMES`) they are.
-OBSERVED_STATISTICS = {"centroid": slice(2, 2), "shading": slice(2, 5), "all": slice(2, 10)}
+#: The values of `observed_statistics` (the columns each reads:
+#: :data:`cnfmp.core.modeling_cnfmp.OBSERVED_COLUMNS`).
+OBSERVED_STATISTICS = ("centroid", "shading", "all")
 
 
 @dataclass

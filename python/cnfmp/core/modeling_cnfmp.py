@@ -37,7 +37,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from cnfmp.core.configuration_cnfmp import OBSERVED_STATISTICS, CnfmpConfig
+from cnfmp.core.configuration_cnfmp import CnfmpConfig
+from cnfmp.core.data import OBSERVATION_NAMES
 from cnfmp.core.layers import (FilmMLP, LipschitzLinear, encoded_size, fourier_features, plain_mlp,
                                regular_grid)
 from cnfmp.core.motion import BasisGenerator, motion_dim, time_basis, time_basis_size
@@ -51,12 +52,17 @@ RESIDUAL_BOUND = 0.15
 STRETCH_BOUND = 0.3
 #: Statistics of the tool-axis object that the tilt readout reads: all its observations
 #: (:attr:`cnfmp.core.data.SceneInputs.observations`, :data:`cnfmp.core.data.OBSERVATION_NAMES`).
-TILT_FEATURES = 10
+TILT_FEATURES = len(OBSERVATION_NAMES)
+#: The columns of the observations that each value of the config's `observed_statistics`
+#: lets the motion read beside the centroid (columns 0-1).
+_FIRST = OBSERVATION_NAMES.index("dark_dx")
+OBSERVED_COLUMNS = {"centroid": slice(_FIRST, _FIRST), "shading": slice(_FIRST, OBSERVATION_NAMES.index("luminance") + 1),
+                    "all": slice(_FIRST, len(OBSERVATION_NAMES))}
 
 
 def observed_width(config: CnfmpConfig) -> int:
     """How many of each object's mask statistics the motion reads beside its centroid."""
-    columns = OBSERVED_STATISTICS[config.observed_statistics]
+    columns = OBSERVED_COLUMNS[config.observed_statistics]
     return columns.stop - columns.start
 
 
@@ -288,7 +294,7 @@ class CnfmpModel(nn.Module):
         table = homogeneous / (1.0 + anchors @ self.table_projection)[..., None]
         observed = torch.einsum("ndk,bnk->bnd", self.position_embedding, table)
         if observed_width(self.config):
-            statistics = observations[..., OBSERVED_STATISTICS[self.config.observed_statistics]]
+            statistics = observations[..., OBSERVED_COLUMNS[self.config.observed_statistics]]
             observed = observed + torch.einsum("ndk,bnk->bnd", self.statistics_embedding, statistics)
         if present is not None:
             observed = observed * present[..., None]
