@@ -11,10 +11,10 @@ from cnfmp.sim.task import Task
 
 @functools.cache
 def _tasks() -> dict[str, Task]:
-    from cnfmp.sim.tasks import (cube_stacking, cup_stacking, drawer_place, incline_pick_place, language_pick_place,
+    from cnfmp.sim.tasks import (bar_into_tray, cube_stacking, cup_stacking, drawer_place, incline_pick_place, language_pick_place,
                                  wall_avoidance)
 
-    modules = (cube_stacking, cup_stacking, drawer_place, incline_pick_place, language_pick_place, wall_avoidance)
+    modules = (bar_into_tray, cube_stacking, cup_stacking, drawer_place, incline_pick_place, language_pick_place, wall_avoidance)
     return {module.TASK.name: module.TASK for module in modules}
 
 
