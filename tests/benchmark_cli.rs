@@ -1,6 +1,7 @@
 //! `cnfmp benchmark table1 --quick` end to end: real datasets, real trainings of every method,
 //! real evaluations by physics, and the report; then a rerun that reuses every finished job,
-//! and bad arguments. The numbers of --quick mean nothing; the machinery is what is tested.
+//! and bad arguments; `cnfmp benchmark data-efficiency` at tiny sizes the same way. The
+//! numbers of --quick mean nothing; the machinery is what is tested.
 
 mod common;
 
@@ -99,4 +100,39 @@ fn bad_arguments_are_refused_before_any_work() {
     assert_eq!(run.status.code(), Some(2), "{}", stderr(&run));
     assert!(stderr(&run).contains("is not a JSON object of config fields"), "{}", stderr(&run));
     assert!(!out.join("table1.md").exists());
+}
+
+#[test]
+fn data_efficiency_trains_one_model_per_size_and_a_rerun_reuses_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("reports");
+    let run = || {
+        cnfmp(&["benchmark", "data-efficiency", "--tasks", "wall_avoidance", "--sizes", "3,2", "--steps", "30", "--episodes", "2", "--out", arg(&out)])
+    };
+    let first = run();
+    assert!(first.status.success(), "{}", stderr(&first));
+    let csv = std::fs::read_to_string(out.join("data_efficiency.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.iter().map(|r| (r[0], r[1])).collect::<Vec<_>>(), [("wall_avoidance", "2"), ("wall_avoidance", "3")], "{csv}");
+    for row in &rows {
+        let (success, med): (f64, f64) = (row[3].parse().unwrap(), row[4].parse().unwrap());
+        assert!((0.0..=1.0).contains(&success) && med.is_finite() && med > 0.0, "{row:?}");
+        assert_eq!(row[2], "2", "held-out episodes: {row:?}");
+    }
+    let md = std::fs::read_to_string(out.join("data_efficiency.md")).unwrap();
+    assert!(md.contains("| task | 2 demos | 3 demos |") && md.contains("| wall_avoidance | "), "{md}");
+    assert!(md.contains("30 steps: a smoke run") && md.contains("cnfmp benchmark data-efficiency"), "{md}");
+    let png = std::fs::read(out.join("data_efficiency.png")).unwrap();
+    assert!(png.starts_with(b"\x89PNG") && png.len() > 5_000, "{} bytes", png.len());
+    // The 2-demonstration set is the first two seeds of the 3-demonstration one.
+    let work = out.join("data-efficiency-work");
+    assert!(work.join("models/wall_avoidance-2-seed0-steps30/model.safetensors").is_file());
+    let rerun = run();
+    assert!(rerun.status.success(), "{}", stderr(&rerun));
+    assert!(stderr(&rerun).contains("reusing 6 finished job(s)"), "{}", stderr(&rerun));
+    assert_eq!(std::fs::read_to_string(out.join("data_efficiency.csv")).unwrap(), csv);
+
+    let bad = cnfmp(&["benchmark", "data-efficiency", "--sizes", "0,5", "--out", arg(&out)]);
+    assert_eq!(bad.status.code(), Some(2), "{}", stderr(&bad));
+    assert!(stderr(&bad).contains("--sizes must be numbers of demonstrations >= 1"), "{}", stderr(&bad));
 }

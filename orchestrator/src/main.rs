@@ -41,7 +41,7 @@ enum Command {
     Eval(model::EvalArgs),
     /// Serve the HTTP API: POST a scene image and a prompt to /v1/trajectories, get a trajectory.
     Serve(cnfmp::serve::ServeArgs),
-    /// Benchmarks that train and evaluate several methods in one run (the paper's Table I).
+    /// Benchmarks that train and evaluate models in one run (the paper's Table I, data efficiency).
     #[command(subcommand)]
     Benchmark(commands::benchmark::BenchmarkCommand),
     /// The main job end to end: serve the shipped models, send a held-out scene and its prompt

@@ -311,4 +311,18 @@ impl Bridge {
             run().map_err(|err| BridgeError::python(py, &err))
         })
     }
+
+    /// Draws the data-efficiency chart (`cnfmp.core.report.curve_chart`): success and MED
+    /// against the number of demonstrations, one line per task, from `results_json` (a list
+    /// of objects with `task`, `demos`, `med_cm`, `success_rate`). Returns PNG bytes.
+    pub fn core_curve_chart(&self, results_json: &str, tasks: &[String], sizes: &[usize]) -> Result<Vec<u8>, BridgeError> {
+        let (results_json, tasks, sizes) = (results_json.to_owned(), tasks.to_vec(), sizes.to_vec());
+        self.call(move |py| {
+            let run = || -> PyResult<Vec<u8>> {
+                let kwargs = kwargs!(py, results_json = results_json, tasks = tasks, sizes = sizes);
+                py.import("cnfmp.core.report")?.call_method("curve_chart", (), Some(&kwargs))?.extract()
+            };
+            run().map_err(|err| BridgeError::python(py, &err))
+        })
+    }
 }

@@ -1,7 +1,9 @@
 """Pictures for benchmark reports, drawn with OpenCV (no plotting library in the venv).
 
 :func:`table_chart` draws the Table-I comparison: one panel of MED (cm) and one of success
-rate, each with a group of bars per task and one bar per method.
+rate, each with a group of bars per task and one bar per method. :func:`curve_chart` draws
+the data-efficiency benchmark: success and MED against the number of demonstrations, one
+line per task.
 """
 
 from __future__ import annotations
@@ -67,6 +69,58 @@ def table_chart(results_json: str, methods: list[str], tasks: list[str]) -> byte
         x, y = left + (m % 3) * 300, legend_top + (m // 3) * 24
         cv2.rectangle(canvas, (x, y - 11), (x + 14, y + 1), PALETTE[m % len(PALETTE)], -1)
         _text(canvas, method, (x + 20, y))
+    ok, png = cv2.imencode(".png", cv2.cvtColor(canvas, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise RuntimeError("OpenCV could not encode the chart")
+    return png.tobytes()
+
+
+def _curve_panel(canvas, top, height, left, width, title, values, tasks, sizes, top_value, fmt):
+    """One line panel: values[(task, size)] -> number (NaN/None = no point); x is the
+    number of demonstrations on a linear axis from 0 to the largest size."""
+    bottom = top + height
+    _text(canvas, title, (left, top - 10), 0.55)
+    for k in range(5):
+        y = bottom - k / 4 * height
+        cv2.line(canvas, (left, int(y)), (left + width, int(y)), (225, 225, 225), 1)
+        _text(canvas, fmt(top_value * k / 4), (left - 48, y + 4), 0.38)
+    cv2.line(canvas, (left, bottom), (left + width, bottom), (60, 60, 60), 1)
+    largest = max(sizes)
+    x_of = lambda size: left + size / largest * width  # noqa: E731
+    for size in sizes:
+        cv2.line(canvas, (int(x_of(size)), bottom), (int(x_of(size)), bottom + 4), (60, 60, 60), 1)
+        _text(canvas, str(size), (x_of(size) - 6, bottom + 18), 0.4)
+    _text(canvas, "demonstrations", (left + width - 110, bottom + 34), 0.4)
+    for t, task in enumerate(tasks):
+        points = [(x_of(s), bottom - min(values[(task, s)], top_value) / top_value * height) for s in sizes
+                  if values.get((task, s)) is not None and math.isfinite(values[(task, s)])]
+        colour = PALETTE[t % len(PALETTE)]
+        for a, b in zip(points, points[1:]):
+            cv2.line(canvas, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), colour, 2, cv2.LINE_AA)
+        for x, y in points:
+            cv2.circle(canvas, (int(x), int(y)), 4, colour, -1, cv2.LINE_AA)
+
+
+def curve_chart(results_json: str, tasks: list[str], sizes: list[int]) -> bytes:
+    """PNG bytes of the data-efficiency chart: success rate and MED (cm) against the number
+    of training demonstrations, one line per task. `results_json` is a list of ``{"task",
+    "demos", "med_cm", "success_rate"}``; `tasks` fixes the colours, `sizes` the x ticks."""
+    results = json.loads(results_json)
+    med = {(r["task"], r["demos"]): r.get("med_cm") for r in results}
+    success = {(r["task"], r["demos"]): r.get("success_rate") for r in results}
+    width, left, panel_w, panel_h = 1000, 70, 880, 220
+    canvas = np.full((40 + 2 * (panel_h + 80) + 24 * math.ceil(len(tasks) / 3), width, 3), 255, np.uint8)
+    finite = [v for v in med.values() if v is not None and math.isfinite(v)]
+    top_med = min(10.0, max(1.0, math.ceil(max(finite, default=1.0))))
+    _curve_panel(canvas, 40, panel_h, left, panel_w, "success rate against demonstrations", success, tasks, sizes,
+                 1.0, lambda v: f"{v:.2f}")
+    _curve_panel(canvas, 40 + panel_h + 80, panel_h, left, panel_w, "MED (cm) against demonstrations", med, tasks,
+                 sizes, top_med, lambda v: f"{v:.2f}")
+    legend_top = 40 + 2 * (panel_h + 80) - 10
+    for t, task in enumerate(tasks):
+        x, y = left + (t % 3) * 300, legend_top + (t // 3) * 24
+        cv2.rectangle(canvas, (x, y - 11), (x + 14, y + 1), PALETTE[t % len(PALETTE)], -1)
+        _text(canvas, task.replace("_", " "), (x + 20, y))
     ok, png = cv2.imencode(".png", cv2.cvtColor(canvas, cv2.COLOR_RGB2BGR))
     if not ok:
         raise RuntimeError("OpenCV could not encode the chart")

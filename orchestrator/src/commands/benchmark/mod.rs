@@ -1,4 +1,5 @@
-//! `cnfmp benchmark table1`: the paper's Table I measured on our benchmark in one run.
+//! `cnfmp benchmark table1`: the paper's Table I measured on our benchmark in one run (and
+//! `cnfmp benchmark data-efficiency`, in `data_efficiency`, on the same job machinery).
 //!
 //! The run is a small job graph (`plan`): training datasets -> one training per method and
 //! task -> one held-out evaluation per model, every job a child `cnfmp` process with its own
@@ -9,6 +10,7 @@
 //! JSONs. Held-out scenes are the evaluation's seeds
 //! only: no training, model selection or early stopping ever sees them.
 
+mod data_efficiency;
 mod plan;
 mod report;
 mod scheduler;
@@ -32,6 +34,9 @@ pub enum BenchmarkCommand {
     /// Reproduce the paper's Table I: train every method on the same demonstrations, evaluate
     /// all on the same held-out scenes, write reports/table1.{md,csv,png}.
     Table1(Table1Args),
+    /// Success and MED of the default recipe against the number of demonstrations (5, 10, 20,
+    /// 30 by default) on every 2D task: write reports/data_efficiency.{md,csv,png}.
+    DataEfficiency(data_efficiency::DataEfficiencyArgs),
 }
 
 #[derive(Debug, Args)]
@@ -69,6 +74,7 @@ pub struct Table1Args {
 pub fn run(command: BenchmarkCommand) -> Result<(), Failure> {
     match command {
         BenchmarkCommand::Table1(args) => table1(args),
+        BenchmarkCommand::DataEfficiency(args) => data_efficiency::run(args),
     }
 }
 

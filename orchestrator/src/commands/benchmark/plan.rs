@@ -41,7 +41,7 @@ pub(super) struct Plan {
 }
 
 /// Dataset jobs by (task, demonstrations, first seed): their index in the plan.
-type Datasets = BTreeMap<(String, usize, u64), usize>;
+pub(super) type Datasets = BTreeMap<(String, usize, u64), usize>;
 
 /// Plans every job of the table. Records each training's config files in the work directory
 /// and removes a model trained from other ones, so that the run retrains it.
@@ -69,7 +69,7 @@ pub(super) fn plan(settings: &Settings) -> Result<Plan, Failure> {
     Ok(Plan { jobs, rows, datasets: datasets.len() })
 }
 
-fn path_arg(path: &Path) -> String {
+pub(super) fn path_arg(path: &Path) -> String {
     path.to_string_lossy().into_owned()
 }
 
@@ -79,7 +79,7 @@ fn model_dir(settings: &Settings, row: &Row) -> PathBuf {
 
 /// The index of the job generating `count` demonstrations of `task` from `seed` (added to the
 /// plan the first time it is asked for).
-fn dataset_job(jobs: &mut Vec<Job>, datasets: &mut Datasets, work: &Path, task: &str, count: usize, seed: u64) -> usize {
+pub(super) fn dataset_job(jobs: &mut Vec<Job>, datasets: &mut Datasets, work: &Path, task: &str, count: usize, seed: u64) -> usize {
     *datasets.entry((task.to_owned(), count, seed)).or_insert_with(|| {
         let name = if seed == 0 { format!("{task}-{count}") } else { format!("{task}-{count}-from-{seed}") };
         let out = work.join("datasets").join(&name);

@@ -40,7 +40,7 @@ pub(super) struct Cell {
     parameters: u64,
 }
 
-fn read_json(path: &Path) -> Result<Value, Failure> {
+pub(super) fn read_json(path: &Path) -> Result<Value, Failure> {
     let text = fs::read_to_string(path).map_err(|err| Failure::Environment(format!("cannot read {}: {err}", path.display())))?;
     serde_json::from_str(&text).map_err(|err| Failure::Environment(format!("{} is not JSON: {err}", path.display())))
 }
