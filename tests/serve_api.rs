@@ -18,8 +18,9 @@ use serde_json::{Value, json};
 const TASK: &str = "language_pick_place";
 /// A held-out scene the shipped model and segmenter solve (also `cnfmp demo`'s default), by a
 /// margin that float kernels cannot take away: driven by the prompt, the prediction is 1.36 cm
-/// (MED) from the expert's trajectory, against places several centimetres across (`cnfmp eval --model models/language_pick_place --task language_pick_place
-/// --episodes 1 --seed-start 1000003 --from-prompt`).
+/// (MED) from the expert's trajectory, against places several centimetres across (`cnfmp
+/// eval --model models/language_pick_place --task language_pick_place --episodes 1
+/// --seed-start 1000003 --from-prompt`).
 const SEED: u64 = 1_000_003;
 
 /// A running `cnfmp serve` and its base URL; dropping it stops the process.
