@@ -151,3 +151,23 @@ def test_the_table_chart_is_a_png_with_a_bar_per_method_and_task():
                          cv2.IMREAD_COLOR)
     assert image is not None and image.shape[1] == 1000 and image.shape[0] > 500
     assert (image != 255).any(axis=2).mean() > 0.02  # bars and text were drawn
+
+
+def test_the_curve_chart_draws_a_line_per_task_in_its_colour_and_skips_missing_points():
+    import cv2
+
+    from cnfmp.core.report import PALETTE, curve_chart
+
+    tasks, sizes = ["wall_avoidance", "cup_stacking"], [5, 10, 20]
+    results = [{"task": t, "demos": n, "med_cm": 3.0 / n, "success_rate": n / 20} for t in tasks for n in sizes]
+    results[-1] = {"task": "cup_stacking", "demos": 20, "med_cm": None, "success_rate": float("nan")}
+    rgb = cv2.cvtColor(cv2.imdecode(np.frombuffer(curve_chart(json.dumps(results), tasks, sizes), np.uint8),
+                                    cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    assert rgb.shape[1] == 1000
+    for k in range(len(tasks)):
+        drawn = (np.abs(rgb.astype(int) - PALETTE[k]).sum(axis=2) < 10).sum()
+        assert drawn > 300, (tasks[k], drawn)  # its two lines, markers and legend swatch
+    # The right edge (20 demonstrations): only wall's colour, cup's point there is missing.
+    right = rgb[:, 930:960]
+    assert (np.abs(right.astype(int) - PALETTE[0]).sum(axis=2) < 10).any()
+    assert not (np.abs(right.astype(int) - PALETTE[1]).sum(axis=2) < 10).any()

@@ -50,6 +50,26 @@ def _panel(canvas, top, height, left, width, title, values, tasks, methods, top_
         _text(canvas, task.replace("_", " "), (x0, bottom + 16), 0.42)
 
 
+def _med_axis_top(values) -> float:
+    """Top of a MED axis (cm): up to 10, or less when every value is lower; taller marks are
+    clipped."""
+    finite = [v for v in values if v is not None and math.isfinite(v)]
+    return min(10.0, max(1.0, math.ceil(max(finite, default=1.0))))
+
+
+def _legend_and_png(canvas, top, left, labels) -> bytes:
+    """Draws a legend of `labels` in PALETTE order, three to a row from `top`, and encodes
+    the canvas as PNG bytes."""
+    for k, label in enumerate(labels):
+        x, y = left + (k % 3) * 300, top + (k // 3) * 24
+        cv2.rectangle(canvas, (x, y - 11), (x + 14, y + 1), PALETTE[k % len(PALETTE)], -1)
+        _text(canvas, label, (x + 20, y))
+    ok, png = cv2.imencode(".png", cv2.cvtColor(canvas, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise RuntimeError("OpenCV could not encode the chart")
+    return png.tobytes()
+
+
 def table_chart(results_json: str, methods: list[str], tasks: list[str]) -> bytes:
     """PNG bytes of the chart; `results_json` is a list of ``{"method", "task", "med_cm",
     "success_rate"}``; `methods` and `tasks` fix the order of bars and groups."""
@@ -58,21 +78,11 @@ def table_chart(results_json: str, methods: list[str], tasks: list[str]) -> byte
     success = {(r["method"], r["task"]): r.get("success_rate") for r in results}
     width, left, panel_w, panel_h = 1000, 70, 900, 220
     canvas = np.full((40 + 2 * (panel_h + 70) + 24 * math.ceil(len(methods) / 3), width, 3), 255, np.uint8)
-    finite = [v for v in med.values() if v is not None and math.isfinite(v)]
-    # MED axis: up to 10 cm, or less when every method does better; taller bars are clipped.
-    top_med = min(10.0, max(1.0, math.ceil(max(finite, default=1.0))))
+    top_med = _med_axis_top(med.values())
     _panel(canvas, 40, panel_h, left, panel_w, "MED (cm), lower is better", med, tasks, methods, top_med, lambda v: f"{v:.1f}")
     _panel(canvas, 40 + panel_h + 70, panel_h, left, panel_w, "success rate, higher is better", success, tasks,
            methods, 1.0, lambda v: f"{v:.2f}")
-    legend_top = 40 + 2 * (panel_h + 70) - 10
-    for m, method in enumerate(methods):
-        x, y = left + (m % 3) * 300, legend_top + (m // 3) * 24
-        cv2.rectangle(canvas, (x, y - 11), (x + 14, y + 1), PALETTE[m % len(PALETTE)], -1)
-        _text(canvas, method, (x + 20, y))
-    ok, png = cv2.imencode(".png", cv2.cvtColor(canvas, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise RuntimeError("OpenCV could not encode the chart")
-    return png.tobytes()
+    return _legend_and_png(canvas, 40 + 2 * (panel_h + 70) - 10, left, methods)
 
 
 def _curve_panel(canvas, top, height, left, width, title, values, tasks, sizes, top_value, fmt):
@@ -110,18 +120,9 @@ def curve_chart(results_json: str, tasks: list[str], sizes: list[int]) -> bytes:
     success = {(r["task"], r["demos"]): r.get("success_rate") for r in results}
     width, left, panel_w, panel_h = 1000, 70, 880, 220
     canvas = np.full((40 + 2 * (panel_h + 80) + 24 * math.ceil(len(tasks) / 3), width, 3), 255, np.uint8)
-    finite = [v for v in med.values() if v is not None and math.isfinite(v)]
-    top_med = min(10.0, max(1.0, math.ceil(max(finite, default=1.0))))
+    top_med = _med_axis_top(med.values())
     _curve_panel(canvas, 40, panel_h, left, panel_w, "success rate against demonstrations", success, tasks, sizes,
                  1.0, lambda v: f"{v:.2f}")
     _curve_panel(canvas, 40 + panel_h + 80, panel_h, left, panel_w, "MED (cm) against demonstrations", med, tasks,
                  sizes, top_med, lambda v: f"{v:.2f}")
-    legend_top = 40 + 2 * (panel_h + 80) - 10
-    for t, task in enumerate(tasks):
-        x, y = left + (t % 3) * 300, legend_top + (t // 3) * 24
-        cv2.rectangle(canvas, (x, y - 11), (x + 14, y + 1), PALETTE[t % len(PALETTE)], -1)
-        _text(canvas, task.replace("_", " "), (x + 20, y))
-    ok, png = cv2.imencode(".png", cv2.cvtColor(canvas, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise RuntimeError("OpenCV could not encode the chart")
-    return png.tobytes()
+    return _legend_and_png(canvas, 40 + 2 * (panel_h + 80) - 10, left, [t.replace("_", " ") for t in tasks])
