@@ -1,17 +1,15 @@
 #!/usr/bin/env bash
 # Reproduces the shipped core models under models/: for each task, a training dataset of the
-# paper's low-data size (wall 10, incline 20, cup 20, cube 30 demonstrations; 30 for
-# language_pick_place, which the paper does not table; drawer_place 4, the paper's Fig. 5, as a
-# cnfmp-3d model on scans (configs/core/drawer_place.json); training seeds from 0) and one
-# `cnfmp train` run, seed 0, with the default configuration of the model type (configs/core/<task>.json
-# where one exists: only drawer_place's, which names its model type).
+# size in scripts/demos.sh (training seeds from 0; drawer_place as a cnfmp-3d model on scans,
+# configs/core/drawer_place.json) and one `cnfmp train` run, seed 0, with the default
+# configuration of the model type (configs/core/<task>.json where one exists: only
+# drawer_place's, which names its model type).
 # Two tasks train at a time (one torch thread each). Usage: scripts/train-models.sh [TASK ...]
 # Environment: MODELS_DIR (default models), DATASETS_DIR (default a temporary directory).
 set -euo pipefail
 source "$(dirname "$0")/common.sh"
 cd "$repo"
-declare -A DEMOS=([wall_avoidance]=10 [incline_pick_place]=20 [cup_stacking]=20 [cube_stacking]=30 [language_pick_place]=30
-                  [drawer_place]=4)
+source "$repo/scripts/demos.sh"
 tasks=("$@")
 [[ ${#tasks[@]} -gt 0 ]] || tasks=(wall_avoidance incline_pick_place cup_stacking cube_stacking language_pick_place drawer_place)
 models=${MODELS_DIR:-models}
