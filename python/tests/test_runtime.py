@@ -29,6 +29,16 @@ def test_configure_rejects_zero_threads():
         runtime.configure(threads=0)
 
 
+def test_subnormal_floats_flush_to_zero_here_and_on_the_worker_threads():
+    import torch
+
+    def smallest_product():  # 1e-30 * 1e-10 is subnormal in float32
+        return float(torch.tensor([1e-30]) * torch.tensor([1e-10]))
+
+    assert smallest_product() == 0.0
+    assert list(runtime.worker_pool().map(lambda _: smallest_product(), range(4))) == [0.0] * 4
+
+
 def test_configure_sets_threads_before_torch_loads_in_a_fresh_process():
     code = (
         "import os, sys\n"

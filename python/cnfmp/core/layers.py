@@ -78,7 +78,7 @@ class FilmMLP(nn.Module):
     """Coordinate MLP whose hidden layers are modulated by a condition vector (FiLM):
     ``h <- relu((1 + gamma_l(c)) * (W_l h + b_l) + beta_l(c))``.
 
-    forward(x: (B, P, in_dim), c: (B, cond_dim)) -> (B, P, out_dim). With `lipschitz`, the
+    forward(x: (B or 1, P, in_dim), c: (B, cond_dim)) -> (B, P, out_dim). With `lipschitz`, the
     condition-to-modulation network is built from :class:`LipschitzLinear` layers.
     """
 
@@ -101,10 +101,16 @@ class FilmMLP(nn.Module):
 
     def forward(self, x: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
         mod = self.film(cond).view(cond.shape[0], self.layers, 2, self.width)
-        h = x
+        h = x.expand(cond.shape[0], -1, -1) if x.shape[0] != cond.shape[0] else x
         for k, layer in enumerate(self.hidden):
-            gamma, beta = mod[:, k, 0, None, :], mod[:, k, 1, None, :]
-            h = F.relu((1.0 + gamma) * layer(h) + beta)
+            # (1 + gamma) (W h + b) + beta as one batched product per scene: the modulation
+            # is folded into that scene's weights and bias, so the pixel-sized tensors see a
+            # single matrix product and the ReLU (most of a training step is elementwise
+            # passes over them).
+            scale = 1.0 + mod[:, k, 0]  # (B, W)
+            weight = scale[:, :, None] * layer.weight  # (B, W, in)
+            bias = (scale * layer.bias + mod[:, k, 1])[:, None, :]  # (B, 1, W)
+            h = F.relu(torch.baddbmm(bias, h, weight.transpose(1, 2)))
         return self.out(h)
 
 
