@@ -1,5 +1,5 @@
-"""Process set-up for the numerics: thread limits, deterministic torch kernels, offline flags
-and the MuJoCo GL backend.
+"""Process set-up for the numerics: thread limits, deterministic torch kernels, subnormal
+floats flushed to zero, offline flags and the MuJoCo GL backend.
 
 Every process that runs cnfmp numerics calls :func:`configure` once, before torch, OpenCV,
 MuJoCo or any Hugging Face library is imported: the embedded interpreter does it on its
