@@ -32,7 +32,7 @@ def test_every_model_type_writes_the_current_config_version():
     assert JsonConfig.current_version() is None  # a class without the field has no versions
     for kind in models.model_types().values():
         config = kind.config_class()
-        version = 4 if isinstance(config, CnfmpConfig) else 1  # cnfmp: defaults in 2, fields renamed in 3 and 4
+        version = 5 if isinstance(config, CnfmpConfig) else 1  # cnfmp: defaults in 2, fields renamed in 3-5
         assert kind.config_class.current_version() == version and config.config_version == version
         assert json.loads(config.to_json())["config_version"] == version
 
@@ -41,16 +41,20 @@ def test_a_config_without_a_version_is_of_the_version_its_reader_says_and_writes
     path = write_config(tmp_path / "config.json", {"model_type": "cnfmp", "steps": 7})
     # A training config file: the current version, today's defaults.
     current = CnfmpConfig.from_file(path)
-    assert (current.config_version, current.anchored_centres, current.motion_shapes_latents) == (4, True, False)
+    assert (current.config_version, current.steps) == (5, 7)
     assert current.tool_axis_object is None and current.observed_statistics == "shading"
-    # A model directory written before versions existed: version 1, upgraded with its defaults.
-    old = CnfmpConfig.from_file(path, unversioned=1)
-    assert (old.config_version, old.steps, old.anchored_centres, old.motion_shapes_latents) == (4, 7, False, True)
+    again = CnfmpConfig.from_dict(json.loads(current.to_json()))
+    assert json.loads(again.to_json())["config_version"] == 5 and again == current
+    # A model directory written before versions existed: version 1, upgraded with its
+    # defaults, which version 5 no longer trains (a centre projective in the latent).
+    with pytest.raises(InputError, match=r"config.json: anchored_centres is no longer a setting .* "
+                                         r"anchored_centres true\); .* retrain it"):
+        CnfmpConfig.from_file(path, unversioned=1)
+    # One that named today's behaviour loads, with what version 1 had of the later fields.
+    old = CnfmpConfig.from_dict({"steps": 7, "anchored_centres": True, "motion_shapes_latents": False}, unversioned=1)
+    assert (old.config_version, old.steps) == (5, 7)
     assert old.tool_axis_object == -1  # a version-1 model never read the tool axis apart
     assert old.observed_statistics == "centroid"  # nor any mask statistic
-    for config in (current, old):
-        again = CnfmpConfig.from_dict(json.loads(config.to_json()))
-        assert json.loads(again.to_json())["config_version"] == 4 and again == config
 
 
 def test_version_2_tilt_object_becomes_the_tool_axis_object_and_the_old_name_is_refused_now():
@@ -69,7 +73,8 @@ def test_version_2_tilt_object_becomes_the_tool_axis_object_and_the_old_name_is_
 def test_version_3_retires_fields_that_held_one_value_and_refuses_a_model_trained_otherwise(tmp_path):
     from cnfmp.core.configuration_cnfmp import VERSION_3_RETIRED
 
-    kept = CnfmpConfig.from_dict({"config_version": 2, **VERSION_3_RETIRED})
+    kept = CnfmpConfig.from_dict({"config_version": 2, **VERSION_3_RETIRED, "anchored_centres": True,
+                                  "motion_shapes_latents": False})
     assert kept == CnfmpConfig(tool_axis_object=-1, observed_statistics="centroid")
     path = write_config(tmp_path / "config.json", {"config_version": 2, "simplex_entropy_weight": 0.01})
     with pytest.raises(InputError, match=r"config.json: simplex_entropy_weight is no longer a setting .* "
@@ -115,37 +120,38 @@ def test_version_3_shading_moments_become_the_observed_statistics_and_a_version_
         np.testing.assert_array_equal(one["trajectory"][key], two["trajectory"][key])
 
 
-def test_version_1_model_directories_keep_the_defaults_they_were_trained_with(tmp_path):
-    """Version 2 turned anchored centres on and latent shaping off by default; a version-1
-    file that left them out (written before the fields existed) loads as it was trained, and
-    one that names them keeps them."""
-    upgraded = CnfmpConfig.from_dict({"config_version": 1, "model_type": "cnfmp"})
-    assert (upgraded.anchored_centres, upgraded.motion_shapes_latents) == (False, True)
-    named = CnfmpConfig.from_dict({"config_version": 1, "anchored_centres": True, "motion_shapes_latents": False})
-    assert (named.anchored_centres, named.motion_shapes_latents) == (True, False)
-    # The shipped models: the ones without a recipe for these fields are read as trained.
+def test_version_5_retires_the_anchored_centres_switches_and_the_shipped_models_load(tmp_path):
+    """Version 5 dropped `anchored_centres` and `motion_shapes_latents`, keeping version 4's
+    defaults; a version-4 file with them loads, one trained otherwise is refused, and a
+    version-5 file may not name them."""
+    from cnfmp.core.configuration_cnfmp import VERSION_5_RETIRED
+
+    assert CnfmpConfig.from_dict({"config_version": 4, **VERSION_5_RETIRED}) == CnfmpConfig()
+    assert CnfmpConfig.from_dict({"config_version": 4}) == CnfmpConfig()
+    for name, value in (("anchored_centres", False), ("motion_shapes_latents", True)):
+        with pytest.raises(InputError, match=f"{name} is no longer a setting .* retrain it"):
+            CnfmpConfig.from_dict({"config_version": 4, name: value})
+        with pytest.raises(InputError, match=rf"unknown field\(s\) {name}"):
+            CnfmpConfig.from_dict({name: value})
+    # Every shipped cnfmp model loads.
     import os
     repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    loaded = 0
     for name in os.listdir(os.path.join(repo, "models")):
         path = os.path.join(repo, "models", name, models.CONFIG_FILE)
-        values = json.load(open(path))
-        if values.get("model_type") != "cnfmp":
-            continue
-        config = models.read_config(os.path.dirname(path))
-        if values.get("config_version", 1) == 1:
-            assert config.anchored_centres == values.get("anchored_centres", False), name
-    # Asking for shaped latents alone now says what else to change.
-    with pytest.raises(InputError, match="set anchored_centres false too"):
-        CnfmpConfig.from_dict({"motion_shapes_latents": True})
+        if json.load(open(path)).get("model_type") == "cnfmp":
+            assert models.read_config(os.path.dirname(path)).config_version == 5, name
+            loaded += 1
+    assert loaded >= 5
 
 
 def test_newer_and_malformed_versions_are_refused(tmp_path):
-    newer = write_config(tmp_path / "newer.json", {"config_version": 5, "steps": 7})
-    with pytest.raises(InputError, match=r"newer.json: config_version 5 was written by a newer cnfmp.*update cnfmp"):
+    newer = write_config(tmp_path / "newer.json", {"config_version": 6, "steps": 7})
+    with pytest.raises(InputError, match=r"newer.json: config_version 6 was written by a newer cnfmp.*update cnfmp"):
         CnfmpConfig.from_file(newer)
     # A newer file's new fields are not what is wrong with it: the version is named first.
     with pytest.raises(InputError, match="newer cnfmp"):
-        CnfmpConfig.from_dict({"config_version": 5, "a_field_of_version_5": 1})
+        CnfmpConfig.from_dict({"config_version": 6, "a_field_of_version_6": 1})
     for bad in (0, -1, "1", 1.0, True, None):
         with pytest.raises(InputError, match="config_version must be a whole number >= 1"):
             CnfmpConfig.from_dict({"config_version": bad})
@@ -154,7 +160,7 @@ def test_newer_and_malformed_versions_are_refused(tmp_path):
 
 
 def test_unknown_fields_and_other_model_types_are_still_refused_by_name(tmp_path):
-    path = write_config(tmp_path / "typo.json", {"config_version": 1, "stepz": 7})
+    path = write_config(tmp_path / "typo.json", {"config_version": 4, "stepz": 7})
     with pytest.raises(InputError, match=r"typo.json: unknown field\(s\) stepz; known: .*config_version"):
         CnfmpConfig.from_file(path)
     # model_type is named first, even with a version this cnfmp cannot read.
@@ -226,11 +232,14 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     saved = tmp_path / "today"
     saved.mkdir()
     models.save_model(model, str(saved))
-    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 4
+    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 5
     old = tmp_path / "before-versions"
     shutil.copytree(saved, old)
     values = json.loads((old / models.CONFIG_FILE).read_text())
     del values["config_version"]
+    # Version-1 files named the two switches that version 5 retired (every file written
+    # since they existed); without them a version-1 model is one version 5 refuses.
+    values.update(anchored_centres=True, motion_shapes_latents=False)
     (old / models.CONFIG_FILE).write_text(json.dumps(values, indent=2))
 
     assert models.read_config(str(old)) == models.read_config(str(saved)) == model.config
@@ -240,15 +249,17 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     np.testing.assert_array_equal(one["weights"], two["weights"])
     assert one["object_mse"] == two["object_mse"]
 
-    # Were the current version 5, the directory without the key would be upgraded from
-    # version 1 (not taken as current) through 2, 3 and 4, and the one with it from 4.
+    # Were the current version 6, the directory without the key would be upgraded from
+    # version 1 (not taken as current) through 2 to 5, and the one with it from 5.
     upgraded = []
-    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 5))
-    monkeypatch.setattr(CnfmpConfig, "upgrade",
-                        classmethod(lambda cls, values, version, source: upgraded.append(version) or values))
-    assert models.read_config(str(old)).config_version == 5 and upgraded == [1, 2, 3, 4]
-    assert models.read_config(str(saved)).config_version == 5 and upgraded == [1, 2, 3, 4, 4]
+    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 6))
+    step = CnfmpConfig.upgrade  # the real steps up to 5, none from 5 to 6
+    monkeypatch.setattr(CnfmpConfig, "upgrade", classmethod(
+        lambda cls, values, version, source: upgraded.append(version) or (
+            values if version == 5 else step(values, version, source))))
+    assert models.read_config(str(old)).config_version == 6 and upgraded == [1, 2, 3, 4, 5]
+    assert models.read_config(str(saved)).config_version == 6 and upgraded == [1, 2, 3, 4, 5, 5]
     monkeypatch.undo()
-    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 5))
-    with pytest.raises(InputError, match=r"config.json: config_version 4 .* retrain the model with `cnfmp train`"):
+    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 6))
+    with pytest.raises(InputError, match=r"config.json: config_version 5 .* retrain the model with `cnfmp train`"):
         models.read_config(str(saved))

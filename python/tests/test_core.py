@@ -455,7 +455,7 @@ def test_full_turns_let_the_template_turn_all_the_way_round():
             field.linear.weight.zero_()
             field.linear.bias.copy_(torch.tensor([-2.0, 0.0, 0.0, 0.0]))  # a half turn (full turns)
             centre = field.object_centre(latent, anchor)
-            canonical = field.canonical(coords, latent, anchor=anchor)
+            canonical = field.canonical(coords, latent, anchor)
         half_turn = -(coords - centre[:, None, :])
         if full_turns:
             assert torch.allclose(canonical, half_turn, atol=1e-5)
@@ -463,10 +463,9 @@ def test_full_turns_let_the_template_turn_all_the_way_round():
             assert (canonical - half_turn).abs().max() > 0.1
 
 
-def test_anchored_centres_follow_the_mask_and_carry_the_position_to_the_motion():
+def test_object_centres_follow_the_mask_and_carry_the_position_to_the_motion():
     torch.manual_seed(0)
-    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False,
-                                   observed_statistics="centroid"), num_demos=2).eval()
+    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, observed_statistics="centroid"), num_demos=2).eval()
     latents = torch.randn(1, 2, TINY["latent_dim"])
     anchors = torch.tensor([[[0.2, -0.1], [-0.4, 0.3]]])
     moved = anchors + torch.tensor([[[0.1, 0.05], [0.0, 0.0]]])
@@ -490,9 +489,17 @@ def test_anchored_centres_follow_the_mask_and_carry_the_position_to_the_motion()
             model.motion(t, latents, both)
 
 
-def test_anchored_centres_with_latents_shaped_by_the_motion_are_refused():
-    with pytest.raises(InputError, match=r"anchored_centres \(on by default\) needs motion_shapes_latents false"):
-        CnfmpConfig(**{**TINY, "anchored_centres": True, "motion_shapes_latents": True}).check()
+def test_the_trajectory_loss_does_not_move_the_latents_in_training():
+    torch.manual_seed(0)
+    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2), num_demos=2).train()
+    latents = torch.randn(1, 2, TINY["latent_dim"], requires_grad=True)
+    observations = torch.rand(1, 2, len(core_data.OBSERVATION_NAMES)) * 0.4
+    both = torch.ones(1, 2, dtype=torch.bool)
+    model.motion(torch.linspace(0, 1, 5), latents, both, observations).sum().backward()
+    assert latents.grad is None and model.generator.mean.grad.abs().sum() > 0
+    model.eval()  # outside training the motion is an ordinary function of the latents
+    model.motion(torch.linspace(0, 1, 5), latents, both, observations).sum().backward()
+    assert latents.grad is not None and latents.grad.abs().sum() > 0
 
 
 def test_scene_inputs_hold_each_field_at_its_shape_and_the_observations_in_their_named_order():
@@ -546,8 +553,7 @@ def test_shading_moments_point_from_the_centroid_to_the_darker_side():
 @pytest.mark.parametrize("observed, read", [("shading", range(2, 5)), ("all", range(2, 10))])
 def test_the_observed_statistics_and_no_others_reach_the_motion(observed, read):
     torch.manual_seed(0)
-    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False,
-                                   observed_statistics=observed), num_demos=2).eval()
+    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, observed_statistics=observed), num_demos=2).eval()
     assert any(p is model.statistics_embedding for p in model.motion_parameters())
     from cnfmp.core.configuration_cnfmp import OBSERVED_STATISTICS
     from cnfmp.core.modeling_cnfmp import OBSERVED_COLUMNS
@@ -565,8 +571,6 @@ def test_the_observed_statistics_and_no_others_reach_the_motion(observed, read):
             # Untrained, the generator's response is small, but it is there (ignored, it would be 0).
             change = (model.motion(t, latents, both, moved) - base).abs().max()
             assert (change > 1e-4) if column in read else (change == 0), core_data.OBSERVATION_NAMES[column]
-    with pytest.raises(InputError, match='observed_statistics .* needs anchored_centres'):
-        CnfmpConfig(**{**TINY, "observed_statistics": observed, "anchored_centres": False}).check()
     with pytest.raises(InputError, match="observed_statistics must be one of centroid, shading, all"):
         CnfmpConfig(**{**TINY, "observed_statistics": "colour"}).check()
 
@@ -589,8 +593,7 @@ def test_tilt_cues_measure_elongation_size_and_where_the_shaded_part_lies():
 
 
 def test_the_tool_axis_object_alone_sets_the_gripper_swing_and_survives_save_and_load(tmp_path):
-    config = CnfmpConfig(**TINY, num_objects=2, anchored_centres=True, motion_shapes_latents=False,
-                         rotation_chart="swing_twist", tool_axis_object=1)
+    config = CnfmpConfig(**TINY, num_objects=2, rotation_chart="swing_twist", tool_axis_object=1)
     torch.manual_seed(0)
     model = CnfmpModel(config, num_demos=2).eval()
     with torch.no_grad():  # an untrained tilt readout answers weakly; make it answer plainly

@@ -20,16 +20,36 @@ NOGATE_MODEL_TYPE = "cnfmp-nogate"
 
 
 #: What a version-1 config (written before 2026-12-03) meant by leaving a field out: the
-#: defaults that version 2 changed. Upgrading fills them in, so older models load as trained.
+#: defaults that version 2 changed. Upgrading fills them in, so a version-1 model trained
+#: with them is refused at version 5 (VERSION_5_RETIRED) instead of read as it was not trained.
 VERSION_1_DEFAULTS = {"anchored_centres": False, "motion_shapes_latents": True}
 #: Fields version 3 retired, each with the one behaviour that stayed: a version-2 file that
 #: holds that value loads without the field; any other value is refused (retrain the model).
 #: Every shipped model had these values (simplex_entropy_weight: no entropy bonus on the
 #: demonstrations' simplex weights; gate_present_only: an absent object's gate is zero).
 VERSION_3_RETIRED = {"simplex_entropy_weight": 0.0, "gate_present_only": True}
+#: Fields version 5 retired in the same way. anchored_centres true: each template is centred
+#: on its coarse mask's centroid plus a small latent offset, and the motion reads the
+#: centroid beside the latent (version 1's alternative, a centre projective in the latent,
+#: is gone); motion_shapes_latents false: the trajectory loss does not move the latents
+#: (anchored centres need it: shaped by the motion, the latents memorise each
+#: demonstration's position and the motion stops reading the centroid; docs/experiments.md,
+#: "Anchored centres").
+VERSION_5_RETIRED = {"anchored_centres": True, "motion_shapes_latents": False}
 #: The values of `observed_statistics` (the columns each reads:
 #: :data:`cnfmp.core.modeling_cnfmp.OBSERVED_COLUMNS`).
 OBSERVED_STATISTICS = ("centroid", "shading", "all")
+
+
+def _retire(values: dict, retired: dict, source: str) -> dict:
+    """`values` (a copy, changed in place) without the `retired` fields; InputError for one
+    that holds another value than the behaviour that stayed."""
+    for name, kept in retired.items():
+        if name in values and values.pop(name) != kept:
+            raise InputError(f"{source}: {name} is no longer a setting (cnfmp now always trains as "
+                             f"{name} {json.dumps(kept)}); this model was trained otherwise: retrain it "
+                             "with `cnfmp train`")
+    return values
 
 
 @dataclass
@@ -62,8 +82,10 @@ class CnfmpConfig(MotionConfig):
     #: Version 2: objects anchored on their masks' centroids, latents not shaped by the
     #: motion, by default (version 1 had neither). Version 3: `tilt_object`, a slot named by
     #: the recipe, became `tool_axis_object`, chosen by training. Version 4: the switch
-    #: `shading_moments` became `observed_statistics`, "shading" by default (:meth:`upgrade`).
-    config_version: int = 4
+    #: `shading_moments` became `observed_statistics`, "shading" by default. Version 5: the
+    #: switches `anchored_centres` and `motion_shapes_latents` went, each keeping version 4's
+    #: default (:meth:`upgrade`).
+    config_version: int = 5
 
     # ---- what the model is for (from data) ----
     #: Object slots, in label order (label k of a mask = slot k-1). A scene may leave trailing
@@ -133,24 +155,16 @@ class CnfmpConfig(MotionConfig):
     #: Weight of the centre prior: squared distance (image coordinates in [-1, 1]) between each
     #: object's template centre c(z_i) and the centroid of its coarse mask, in training and
     #: in inference. The coarse masks roughly localise the objects (paper §II); this term
-    #: anchors the translation part of every latent to that location.
+    #: anchors the translation part of every latent to that location. Each template's centre
+    #: is its mask's centroid plus a small latent-dependent offset (a tall object's centroid
+    #: is not where its base is), and the motion reads the centroid, through a learned
+    #: projective map from image to table, beside the latent: the latent is left to shape
+    #: and pose, so a new scene that pairs one demonstration's position with another's pose
+    #: needs no latent that training never tied to a motion.
     centre_prior_weight: float = 1.0
-    #: Whether each object's position comes from its coarse mask instead of its latent: the
-    #: template centre is the mask's centroid plus a small latent-dependent offset, and the
-    #: motion reads the centroid (through a learned projective map from image to table) next
-    #: to the latent. The latent is then left to the object's shape and pose, so a new scene
-    #: that pairs one demonstration's position with another's pose needs no latent that
-    #: training never tied to a motion. (The centre prior then keeps the offset small.) Needs
-    #: `motion_shapes_latents` False (check() refuses the pair): shaped by the motion, the
-    #: latents memorise each demonstration's position again and the motion stops reading the
-    #: centroid (docs/experiments.md, "Anchored centres": cup validation success 0.075 against 0.95).
-    #: On by default since config version 2: with it and no other setting, wall, cup, cube
-    #: and language reached validation success 0.90-1.00 over the seeds tried (docs/
-    #: experiments.md, "Anchored centres for every task").
-    anchored_centres: bool = True
     #: Which of each object's mask statistics (:data:`cnfmp.core.data.OBSERVATION_NAMES`) the
     #: motion reads beside its latent and centroid, through a learned linear map into the
-    #: latent space (one per object slot; needs `anchored_centres`): "centroid" (none more),
+    #: latent space (one per object slot): "centroid" (none more),
     #: "shading" (the offset from the centroid to the darkness-weighted centroid and the mean
     #: luminance) or "all" (also the elongation, the size and the shaded part's offset).
     #: Shaded faces and the parts under an object's top show on one side of it, which tells a
@@ -187,11 +201,6 @@ class CnfmpConfig(MotionConfig):
     #: Whether the temporal gating is learned; False gives the ablation with constant, equal
     #: weights (z(t) = mean of the object latents).
     temporal_gating: bool = True
-    #: Whether the trajectory loss also moves the latents (joint shaping, as in the paper);
-    #: False trains the motion on the latents the scene alone explains, so nothing the image
-    #: cannot show steers the motion (the default since config version 2; True needs
-    #: `anchored_centres` false).
-    motion_shapes_latents: bool = False
     #: Steps of the motion refit that ends training: every demonstration's latents are
     #: inferred from its image exactly as for a new scene, and the gating and trajectory
     #: generator alone are fit to them, so the motion reads the latents inference produces
@@ -275,19 +284,16 @@ class CnfmpConfig(MotionConfig):
         none, where the file leaves it out: a version-2 model never chose one), and the
         fields of VERSION_3_RETIRED go (refused unless they hold the behaviour that stayed).
         Version 3 -> 4: `shading_moments` true is `observed_statistics` "shading", false or
-        left out (version 3's default) "centroid"."""
+        left out (version 3's default) "centroid". Version 4 -> 5: the fields of
+        VERSION_5_RETIRED go, likewise (a version-1 model, which had neither behaviour, is
+        refused there)."""
         if version == 1:
             return {**VERSION_1_DEFAULTS, **values}
         if version == 2:
             values = dict(values)
             if "tool_axis_object" not in values:  # both names: tilt_object is refused as unknown
                 values["tool_axis_object"] = values.pop("tilt_object", -1)
-            for name, kept in VERSION_3_RETIRED.items():
-                if name in values and values.pop(name) != kept:
-                    raise InputError(f"{source}: {name} is no longer a setting (cnfmp now always trains as "
-                                     f"{name} {json.dumps(kept)}); this model was trained otherwise: retrain it "
-                                     "with `cnfmp train`")
-            return values
+            return _retire(values, VERSION_3_RETIRED, source)
         if version == 3:
             values = dict(values)
             if "observed_statistics" not in values:  # both names: shading_moments is refused as unknown
@@ -296,6 +302,8 @@ class CnfmpConfig(MotionConfig):
                     raise InputError(f"{source}: shading_moments must be true or false, got {shading!r}")
                 values["observed_statistics"] = "shading" if shading else "centroid"
             return values
+        if version == 4:
+            return _retire(dict(values), VERSION_5_RETIRED, source)
         return super().upgrade(values, version, source)
 
     @property
@@ -324,17 +332,9 @@ class CnfmpConfig(MotionConfig):
         for name in ["anneal_fraction", "draw_fraction"]:
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(f"{source}: {name} must be in [0, 1], got {getattr(self, name)!r}")
-        if self.anchored_centres and self.motion_shapes_latents:
-            raise InputError(f"{source}: anchored_centres (on by default) needs motion_shapes_latents false (shaped "
-                             "by the motion, the latents memorise each demonstration's position and the motion "
-                             "ignores the mask centroid); for latents shaped by the motion set anchored_centres "
-                             "false too")
         if self.observed_statistics not in OBSERVED_STATISTICS:
             raise InputError(f"{source}: observed_statistics must be one of {', '.join(OBSERVED_STATISTICS)}, "
                              f"got {self.observed_statistics!r}")
-        if self.observed_statistics != "centroid" and not self.anchored_centres:
-            raise InputError(f"{source}: observed_statistics {self.observed_statistics!r} needs anchored_centres "
-                             "(the motion reads the mask statistics beside the mask centroid); set it \"centroid\"")
         slot = self.tool_axis_object
         if slot is not None and (isinstance(slot, bool) or not isinstance(slot, int) or slot < -1):
             raise InputError(f"{source}: tool_axis_object must be null (training chooses), -1 (none) or an "

@@ -219,7 +219,7 @@ class SceneInputs:
         observations: (N, len(OBSERVATION_NAMES)) float32 each object's mask statistics, at
             full image resolution, in the order of OBSERVATION_NAMES (:func:`observe_mask`;
             0 when absent): what the model reads of an object besides its latent (the
-            centroids with the config's `anchored_centres`, the columns of its
+            centroids, the columns of the config's
             `observed_statistics`, all ten for the object of `tool_axis_object`).
         present: (N,) bool whether the slot's mask has any pixel at field resolution.
     """

@@ -18,9 +18,8 @@ Each appearance field F_i sees only its template coordinates x_i and the object'
 colour (the median colour under its coarse mask), never z_i: one expert covers a red, green
 or blue cube, and every geometric difference between scenes must go through the deformation,
 so the latent carries geometry. The deformation's translation is anchored to the centroid of
-the coarse mask (the centre prior), and is a projective function of the latent, as the camera
-sees the table; or, with `anchored_centres`, it is that centroid plus a small latent offset,
-and the motion reads the centroid itself beside the latent, with the mask statistics of
+the coarse mask: it is that centroid plus a small latent offset (kept small by the centre
+prior), and the motion reads the centroid itself beside the latent, with the mask statistics of
 `observed_statistics` (by default where the image inside the mask is darker, which tells a
 pose the template's turn cannot).
 With `tool_axis_object` (chosen by training), the direction of the tool axis bypasses the
@@ -87,8 +86,6 @@ class ObjectField(nn.Module):
         super().__init__()
         self.config = config
         self.centre = LipschitzLinear(config.latent_dim, 2)
-        if not config.anchored_centres:  # anchored, the centre is the mask's: no perspective to learn
-            self.perspective = nn.Parameter(torch.zeros(config.latent_dim))
         self.linear = nn.Linear(config.latent_dim, 4)
         self.deformation = FilmMLP(encoded_size(2, config.deformation_octaves), config.latent_dim, config.field_width,
                                    config.field_layers, 2, lipschitz=True)
@@ -100,32 +97,24 @@ class ObjectField(nn.Module):
             self.deformation.out.weight.zero_()
             self.deformation.out.bias.zero_()
             self.centre.linear.bias.zero_()
-            if config.anchored_centres:  # an offset from the centroid: start near none
-                self.centre.linear.weight.mul_(0.1)
+            self.centre.linear.weight.mul_(0.1)  # an offset from the centroid: start near none
 
-    def object_centre(self, latent: torch.Tensor, anchor: torch.Tensor | None = None) -> torch.Tensor:
-        """The object's centre c(z) in image coordinates: latent (..., D) and the centroid of
-        its coarse mask `anchor` (..., 2) -> (..., 2).
+    def object_centre(self, latent: torch.Tensor, anchor: torch.Tensor) -> torch.Tensor:
+        """The object's centre ``c = anchor + W z + b`` in image coordinates: latent (..., D)
+        and the centroid of its coarse mask `anchor` (..., 2) -> (..., 2). The latent only
+        shifts the template off the centroid (a tall object's centroid is not where its base
+        is)."""
+        return anchor + self.centre(latent)
 
-        A projective function of the latent, ``c(z) = (W z + b) exp(-g . z)``, the way a
-        camera sees positions on the table: the latent can then hold the object's position
-        linearly in the world, which is what the (affine) motion needs, while the image
-        position follows the perspective. With `anchored_centres`, ``c = anchor + W z + b``:
-        the latent only shifts the template off the centroid (a tall object's centroid is not
-        where its base is)."""
-        if self.config.anchored_centres:
-            return anchor + self.centre(latent)
-        return self.centre(latent) * torch.exp(-(latent @ self.perspective))[..., None]
-
-    def canonical(self, coords: torch.Tensor, latent: torch.Tensor,
-                  coarse: "CoarseResidual | None" = None, anchor: torch.Tensor | None = None) -> torch.Tensor:
+    def canonical(self, coords: torch.Tensor, latent: torch.Tensor, anchor: torch.Tensor,
+                  coarse: "CoarseResidual | None" = None) -> torch.Tensor:
         """Image coordinates (B, P, 2) -> the template's coordinates x_i (B, P, 2).
 
         The linear part and the residual are bounded (entries of A within +-LINEAR_BOUND,
         residual within +-RESIDUAL_BOUND): unbounded, the residual learns to undo the
         translation and the template stops following the object. With `coarse` (built for
         these `coords`), the residual is evaluated on its grid and interpolated. `anchor` (B, 2):
-        the mask centroids, for `anchored_centres`."""
+        the mask centroids."""
         centre = self.object_centre(latent, anchor)
         local = coords - centre[:, None, :]
         raw = self.linear(latent)
@@ -151,9 +140,11 @@ class ObjectField(nn.Module):
         outputs (B, P, 4), rgb logits then the mask logit."""
         return self.appearance(fourier_features(canonical, self.config.appearance_octaves, progress), colour)
 
-    def forward(self, coords, latent, colour, progress=None, baked: "BakedAppearance | None" = None,
-                coarse: "CoarseResidual | None" = None, anchor: torch.Tensor | None = None):
-        canonical = self.canonical(coords, latent, coarse, anchor)
+    def forward(self, coords, latent, colour, anchor, progress=None, baked: "BakedAppearance | None" = None,
+                coarse: "CoarseResidual | None" = None):
+        """Coordinates (B, P, 2), latent (B, D), colour (B, 3) and mask centroid `anchor`
+        (B, 2) -> (rgb (B, P, 3), mask logit (B, P), canonical coordinates (B, P, 2))."""
+        canonical = self.canonical(coords, latent, anchor, coarse)
         out = self.appearance_terms(canonical, colour, progress) if baked is None else baked(canonical)
         return torch.sigmoid(out[..., :3]), out[..., 3], canonical
 
@@ -222,12 +213,6 @@ class CoarseResidual:
         return out[..., 0].transpose(1, 2)
 
 
-def slot_anchor(anchors: torch.Tensor | None, slot: int) -> torch.Tensor | None:
-    """One slot's mask centroids (B, 2) of all centroids (B, N, 2); None stays None (models
-    without `anchored_centres` take none)."""
-    return None if anchors is None else anchors[:, slot]
-
-
 class CnfmpModel(nn.Module):
     """Scene fields, latents and motion of one task (shapes: B scenes, N objects, K endpoints,
     D latent size, P pixels, T times)."""
@@ -248,12 +233,11 @@ class CnfmpModel(nn.Module):
         time_in = time_basis_size(config)
         self.gating = plain_mlp(time_in, config.gating_width, 2, n)
         self.generator = BasisGenerator(time_in, d, motion_dim(config))
-        if config.anchored_centres:
-            #: The inverse camera map's denominator: a centroid (u, v) is on the table at a
-            #: position affine in ``(u, v, 1) / (1 + h . (u, v))``.
-            self.table_projection = nn.Parameter(torch.zeros(2))
-            #: How each object's table position enters its latent for the motion: (N, D, 3).
-            self.position_embedding = nn.Parameter(0.5 * torch.randn(n, d, 3))
+        #: The inverse camera map's denominator: a centroid (u, v) is on the table at a
+        #: position affine in ``(u, v, 1) / (1 + h . (u, v))``.
+        self.table_projection = nn.Parameter(torch.zeros(2))
+        #: How each object's table position enters its latent for the motion: (N, D, 3).
+        self.position_embedding = nn.Parameter(0.5 * torch.randn(n, d, 3))
         statistics = observed_width(config)
         if statistics:
             #: How each object's observed mask statistics enter its latent for the motion:
@@ -273,22 +257,19 @@ class CnfmpModel(nn.Module):
         z = torch.einsum("bnk,nkd->bnd", weights, self.endpoints)
         return torch.where(present[..., None], z, self.absent[None].expand_as(z))
 
-    def object_centres(self, latents: torch.Tensor, anchors: torch.Tensor | None = None) -> torch.Tensor:
+    def object_centres(self, latents: torch.Tensor, anchors: torch.Tensor) -> torch.Tensor:
         """Object latents (B, N, D) and mask centroids (B, N, 2) -> template centres c(z_i)
         (B, N, 2), image coordinates."""
-        return torch.stack([field.object_centre(latents[:, k], slot_anchor(anchors, k))
+        return torch.stack([field.object_centre(latents[:, k], anchors[:, k])
                             for k, field in enumerate(self.objects)], dim=1)
 
     def motion_latents(self, latents: torch.Tensor, observations: torch.Tensor | None,
                        present: torch.Tensor | None):
-        """The latents the motion reads (B, N, D): with `anchored_centres`, each present
-        object's latent plus its embedded table position, from its mask centroid, and its
+        """The latents the motion reads (B, N, D): each present object's latent plus its embedded table position, from its mask centroid, and its
         embedded mask statistics of `observed_statistics`, from its observations (B, N,
         len(OBSERVATION_NAMES), :attr:`cnfmp.core.data.SceneInputs.observations`)."""
-        if not self.config.anchored_centres:
-            return latents
         if observations is None:
-            raise ValueError("a model with anchored_centres needs the masks' observations")
+            raise ValueError("the motion reads the masks' observations: pass them")
         anchors = observations[..., :2]
         homogeneous = torch.cat([anchors, torch.ones_like(anchors[..., :1])], dim=-1)
         table = homogeneous / (1.0 + anchors @ self.table_projection)[..., None]
@@ -315,17 +296,17 @@ class CnfmpModel(nn.Module):
         out = self.background(fourier_features(coords, self.config.background_octaves, progress))
         return torch.sigmoid(out[..., :3]), out[..., 3]
 
-    def scene(self, coords, latents, colours, present, progress=None, map_objects=map, anchors=None) -> dict:
+    def scene(self, coords, latents, colours, present, anchors, progress=None, map_objects=map) -> dict:
         """Renders the scene at `coords` (B, P, 2). `map_objects` maps the per-object rendering
         over the slots (inference passes a thread pool's map to render objects in parallel);
-        `anchors` (B, N, 2): the mask centroids, for `anchored_centres`.
+        `anchors` (B, N, 2): the mask centroids.
 
         Returns ``{"rgb": (B, P, 3) composite, "object_rgb": (B, N, P, 3), "logits":
         (B, N + 1, P) object logits then background (absent objects at -inf), "masks":
         (B, N + 1, P) softmax of the logits, "canonical": (B, N, P, 2) template coordinates}``.
         """
-        rendered = map_objects(lambda slot: self.objects[slot](coords, latents[:, slot], colours[:, slot], progress,
-                                                               anchor=slot_anchor(anchors, slot)),
+        rendered = map_objects(lambda slot: self.objects[slot](coords, latents[:, slot], colours[:, slot], anchors[:, slot],
+                                                               progress),
                                range(len(self.objects)))
         return self.composite(list(rendered), present, self.background_terms(coords, progress))
 
@@ -371,11 +352,11 @@ class CnfmpModel(nn.Module):
 
     def motion(self, t: torch.Tensor, latents: torch.Tensor, present: torch.Tensor | None = None,
                observations: torch.Tensor | None = None) -> torch.Tensor:
-        """Normalised times (T,), object latents (B, N, D), their presence (B, N) bool and,
-        for `anchored_centres` or `tool_axis_object`, their masks' observations (B, N,
-        len(OBSERVATION_NAMES)) -> generator outputs (B, T, 7): normalised position, rotation
-        (rad, in the config's rotation_chart), gripper."""
-        if self.training and not self.config.motion_shapes_latents:
+        """Normalised times (T,), object latents (B, N, D), their presence (B, N) bool and
+        their masks' observations (B, N, len(OBSERVATION_NAMES)) -> generator outputs
+        (B, T, 7): normalised position, rotation (rad, in the config's rotation_chart),
+        gripper."""
+        if self.training:  # the trajectory loss does not shape the latents (VERSION_5_RETIRED)
             latents = latents.detach()
         latents = self.motion_latents(latents, observations, present)
         gates = self.gates(t, present)
@@ -414,7 +395,7 @@ class CnfmpModel(nn.Module):
     def motion_parameters(self) -> list[nn.Parameter]:
         """The parameters that map object latents (and positions and mask statistics, and
         the tool-axis object's statistics) to the motion."""
-        extra = [self.table_projection, self.position_embedding] if self.config.anchored_centres else []
+        extra = [self.table_projection, self.position_embedding]
         if observed_width(self.config):
             extra.append(self.statistics_embedding)
         if self.config.tool_axis_slot >= 0:

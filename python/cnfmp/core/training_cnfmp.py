@@ -152,7 +152,7 @@ class _Draw:
             weights = torch.softmax(model.demo_logits[bt], dim=-1)
             latents = model.latents(weights, present)
             anchors = data.centre[bt]
-            scene = model.scene(coords, latents, data.colour[bt], present, progress, anchors=anchors)
+            scene = model.scene(coords, latents, data.colour[bt], present, anchors, progress)
             composite, local = image_losses(model, scene, target, present, config.pixels_per_object)
             # Logits are ordered objects then background; labels 0 = background, k = object k.
             label = torch.gather(data.labels[bt], 1, pixels)
