@@ -21,7 +21,8 @@ NOGATE_MODEL_TYPE = "cnfmp-nogate"
 
 #: What a version-1 config (written before 2026-12-03) meant by leaving a field out: the
 #: defaults that version 2 changed. Upgrading fills them in, so a version-1 model trained
-#: with them is refused at version 5 (VERSION_5_RETIRED) instead of read as it was not trained.
+#: with them is refused at version 5 (VERSION_5_RETIRED) rather than loaded as a model of
+#: another kind.
 VERSION_1_DEFAULTS = {"anchored_centres": False, "motion_shapes_latents": True}
 #: Fields version 3 retired, each with the one behaviour that stayed: a version-2 file that
 #: holds that value loads without the field; any other value is refused (retrain the model).

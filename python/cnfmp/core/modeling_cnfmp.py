@@ -265,9 +265,10 @@ class CnfmpModel(nn.Module):
 
     def motion_latents(self, latents: torch.Tensor, observations: torch.Tensor | None,
                        present: torch.Tensor | None):
-        """The latents the motion reads (B, N, D): each present object's latent plus its embedded table position, from its mask centroid, and its
-        embedded mask statistics of `observed_statistics`, from its observations (B, N,
-        len(OBSERVATION_NAMES), :attr:`cnfmp.core.data.SceneInputs.observations`)."""
+        """The latents the motion reads (B, N, D): each present object's latent plus its
+        embedded table position, from its mask centroid, and its embedded mask statistics of
+        `observed_statistics`, from its observations (B, N, len(OBSERVATION_NAMES),
+        :attr:`cnfmp.core.data.SceneInputs.observations`)."""
         if observations is None:
             raise ValueError("the motion reads the masks' observations: pass them")
         anchors = observations[..., :2]
@@ -305,8 +306,8 @@ class CnfmpModel(nn.Module):
         (B, N + 1, P) object logits then background (absent objects at -inf), "masks":
         (B, N + 1, P) softmax of the logits, "canonical": (B, N, P, 2) template coordinates}``.
         """
-        rendered = map_objects(lambda slot: self.objects[slot](coords, latents[:, slot], colours[:, slot], anchors[:, slot],
-                                                               progress),
+        rendered = map_objects(lambda slot: self.objects[slot](coords, latents[:, slot], colours[:, slot],
+                                                               anchors[:, slot], progress),
                                range(len(self.objects)))
         return self.composite(list(rendered), present, self.background_terms(coords, progress))
 
