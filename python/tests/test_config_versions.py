@@ -32,7 +32,7 @@ def test_every_model_type_writes_the_current_config_version():
     assert JsonConfig.current_version() is None  # a class without the field has no versions
     for kind in models.model_types().values():
         config = kind.config_class()
-        version = 5 if isinstance(config, CnfmpConfig) else 1  # cnfmp: defaults in 2, fields renamed in 3-5
+        version = 6 if isinstance(config, CnfmpConfig) else 1  # cnfmp: defaults in 2, fields renamed in 3-6
         assert kind.config_class.current_version() == version and config.config_version == version
         assert json.loads(config.to_json())["config_version"] == version
 
@@ -41,10 +41,10 @@ def test_a_config_without_a_version_is_of_the_version_its_reader_says_and_writes
     path = write_config(tmp_path / "config.json", {"model_type": "cnfmp", "steps": 7})
     # A training config file: the current version, today's defaults.
     current = CnfmpConfig.from_file(path)
-    assert (current.config_version, current.steps) == (5, 7)
-    assert current.tool_axis_object is None and current.observed_statistics == "shading"
+    assert (current.config_version, current.steps) == (6, 7)
+    assert current.tool_axis_object is None and current.observed_statistics is None  # training chooses
     again = CnfmpConfig.from_dict(json.loads(current.to_json()))
-    assert json.loads(again.to_json())["config_version"] == 5 and again == current
+    assert json.loads(again.to_json())["config_version"] == 6 and again == current
     # A model directory written before versions existed: version 1, upgraded with its
     # defaults, which version 5 no longer trains (a centre projective in the latent).
     with pytest.raises(InputError, match=r"config.json: anchored_centres is no longer a setting .* "
@@ -52,7 +52,7 @@ def test_a_config_without_a_version_is_of_the_version_its_reader_says_and_writes
         CnfmpConfig.from_file(path, unversioned=1)
     # One that named today's behaviour loads, with what version 1 had of the later fields.
     old = CnfmpConfig.from_dict({"steps": 7, "anchored_centres": True, "motion_shapes_latents": False}, unversioned=1)
-    assert (old.config_version, old.steps) == (5, 7)
+    assert (old.config_version, old.steps) == (6, 7)
     assert old.tool_axis_object == -1  # a version-1 model never read the tool axis apart
     assert old.observed_statistics == "centroid"  # nor any mask statistic
 
@@ -126,8 +126,9 @@ def test_version_5_retires_the_anchored_centres_switches_and_the_shipped_models_
     version-5 file may not name them."""
     from cnfmp.core.configuration_cnfmp import VERSION_5_RETIRED
 
-    assert CnfmpConfig.from_dict({"config_version": 4, **VERSION_5_RETIRED}) == CnfmpConfig()
-    assert CnfmpConfig.from_dict({"config_version": 4}) == CnfmpConfig()
+    version_5 = CnfmpConfig(observed_statistics="shading")  # version 5's default (version 6 lets training choose)
+    assert CnfmpConfig.from_dict({"config_version": 4, **VERSION_5_RETIRED}) == version_5
+    assert CnfmpConfig.from_dict({"config_version": 4}) == version_5
     for name, value in (("anchored_centres", False), ("motion_shapes_latents", True)):
         with pytest.raises(InputError, match=f"{name} is no longer a setting .* retrain it"):
             CnfmpConfig.from_dict({"config_version": 4, name: value})
@@ -140,18 +141,19 @@ def test_version_5_retires_the_anchored_centres_switches_and_the_shipped_models_
     for name in os.listdir(os.path.join(repo, "models")):
         path = os.path.join(repo, "models", name, models.CONFIG_FILE)
         if json.load(open(path)).get("model_type") == "cnfmp":
-            assert models.read_config(os.path.dirname(path)).config_version == 5, name
+            config = models.read_config(os.path.dirname(path))
+            assert config.config_version == 6 and config.observed_statistics == "shading", name
             loaded += 1
     assert loaded >= 5
 
 
 def test_newer_and_malformed_versions_are_refused(tmp_path):
-    newer = write_config(tmp_path / "newer.json", {"config_version": 6, "steps": 7})
-    with pytest.raises(InputError, match=r"newer.json: config_version 6 was written by a newer cnfmp.*update cnfmp"):
+    newer = write_config(tmp_path / "newer.json", {"config_version": 7, "steps": 7})
+    with pytest.raises(InputError, match=r"newer.json: config_version 7 was written by a newer cnfmp.*update cnfmp"):
         CnfmpConfig.from_file(newer)
     # A newer file's new fields are not what is wrong with it: the version is named first.
     with pytest.raises(InputError, match="newer cnfmp"):
-        CnfmpConfig.from_dict({"config_version": 6, "a_field_of_version_6": 1})
+        CnfmpConfig.from_dict({"config_version": 7, "a_field_of_version_7": 1})
     for bad in (0, -1, "1", 1.0, True, None):
         with pytest.raises(InputError, match="config_version must be a whole number >= 1"):
             CnfmpConfig.from_dict({"config_version": bad})
@@ -232,7 +234,7 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     saved = tmp_path / "today"
     saved.mkdir()
     models.save_model(model, str(saved))
-    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 5
+    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 6
     old = tmp_path / "before-versions"
     shutil.copytree(saved, old)
     values = json.loads((old / models.CONFIG_FILE).read_text())
@@ -249,17 +251,17 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     np.testing.assert_array_equal(one["weights"], two["weights"])
     assert one["object_mse"] == two["object_mse"]
 
-    # Were the current version 6, the directory without the key would be upgraded from
-    # version 1 (not taken as current) through 2 to 5, and the one with it from 5.
+    # Were the current version 7, the directory without the key would be upgraded from
+    # version 1 (not taken as current) through 2 to 6, and the one with it from 6.
     upgraded = []
-    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 6))
-    step = CnfmpConfig.upgrade  # the real steps up to 5, none from 5 to 6
+    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 7))
+    step = CnfmpConfig.upgrade  # the real steps up to 6, none from 6 to 7
     monkeypatch.setattr(CnfmpConfig, "upgrade", classmethod(
         lambda cls, values, version, source: upgraded.append(version) or (
-            values if version == 5 else step(values, version, source))))
-    assert models.read_config(str(old)).config_version == 6 and upgraded == [1, 2, 3, 4, 5]
-    assert models.read_config(str(saved)).config_version == 6 and upgraded == [1, 2, 3, 4, 5, 5]
+            values if version == 6 else step(values, version, source))))
+    assert models.read_config(str(old)).config_version == 7 and upgraded == [1, 2, 3, 4, 5, 6]
+    assert models.read_config(str(saved)).config_version == 7 and upgraded == [1, 2, 3, 4, 5, 6, 6]
     monkeypatch.undo()
-    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 6))
-    with pytest.raises(InputError, match=r"config.json: config_version 5 .* retrain the model with `cnfmp train`"):
+    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 7))
+    with pytest.raises(InputError, match=r"config.json: config_version 6 .* retrain the model with `cnfmp train`"):
         models.read_config(str(saved))

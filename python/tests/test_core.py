@@ -491,7 +491,7 @@ def test_object_centres_follow_the_mask_and_carry_the_position_to_the_motion():
 
 def test_the_trajectory_loss_does_not_move_the_latents_in_training():
     torch.manual_seed(0)
-    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2), num_demos=2).train()
+    model = CnfmpModel(CnfmpConfig(**TINY, num_objects=2, observed_statistics="shading"), num_demos=2).train()
     latents = torch.randn(1, 2, TINY["latent_dim"], requires_grad=True)
     observations = torch.rand(1, 2, len(core_data.OBSERVATION_NAMES)) * 0.4
     both = torch.ones(1, 2, dtype=torch.bool)
@@ -571,7 +571,7 @@ def test_the_observed_statistics_and_no_others_reach_the_motion(observed, read):
             # Untrained, the generator's response is small, but it is there (ignored, it would be 0).
             change = (model.motion(t, latents, both, moved) - base).abs().max()
             assert (change > 1e-4) if column in read else (change == 0), core_data.OBSERVATION_NAMES[column]
-    with pytest.raises(InputError, match="observed_statistics must be one of centroid, shading, all"):
+    with pytest.raises(InputError, match=r"observed_statistics must be null \(training chooses\) or one of centroid, shading, all"):
         CnfmpConfig(**{**TINY, "observed_statistics": "colour"}).check()
 
 
@@ -593,7 +593,8 @@ def test_tilt_cues_measure_elongation_size_and_where_the_shaded_part_lies():
 
 
 def test_the_tool_axis_object_alone_sets_the_gripper_swing_and_survives_save_and_load(tmp_path):
-    config = CnfmpConfig(**TINY, num_objects=2, rotation_chart="swing_twist", tool_axis_object=1)
+    config = CnfmpConfig(**TINY, num_objects=2, observed_statistics="shading", rotation_chart="swing_twist",
+                         tool_axis_object=1)
     torch.manual_seed(0)
     model = CnfmpModel(config, num_demos=2).eval()
     with torch.no_grad():  # an untrained tilt readout answers weakly; make it answer plainly
@@ -759,7 +760,7 @@ image = np.random.default_rng(0).integers(0, 255, (40, 48, 3), dtype=np.uint8)
 labels = np.zeros((40, 48), dtype=np.uint8)
 labels[5:15, 5:15], labels[20:30, 30:40] = 1, 2
 from cnfmp.core import data
-config = CnfmpConfig(**{TINY!r}, num_objects=2)
+config = CnfmpConfig(**{TINY!r}, num_objects=2, observed_statistics="shading")
 inputs = data.scene_inputs(image, labels, 2, config.field_resolution, config.mask_dilation)
 Predictor(CnfmpModel(config, num_demos=2)).infer_scene(inputs)
 try:  # the fit runs first; an untrained model's motion does not decode to rotations

@@ -27,6 +27,7 @@ def incline(tmp_path_factory) -> str:
 
     config = CnfmpConfig(task="incline_pick_place", num_objects=2, object_names=["block", "ramp"],
                          slot_can_be_absent=[False, False], duration_s=1.0, full_turns=True, tool_axis_object=-1,
+                         observed_statistics="shading",
                          field_resolution=16, latent_dim=4, field_width=16, field_layers=2)
     torch.manual_seed(0)
     out = tmp_path_factory.mktemp("incline")

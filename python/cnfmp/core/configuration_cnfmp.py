@@ -61,15 +61,16 @@ class CnfmpConfig(MotionConfig):
     data)" fields, chooses which labelled objects the task is about (`task_objects`) and
     whether the tool axis is read from one object's mask (`tool_axis_object`), and trains the
     default recipe (docs/benchmarks.md, "Core models", for what it reaches on the benchmark
-    tasks). What a user may reasonably change, and when:
+    tasks), after choosing which of the masks' statistics the motion reads
+    (`observed_statistics`). What a user may reasonably change, and when:
 
     - `steps` (2000): fewer for a quick look (the losses are printed as training goes), more
       when the trajectory loss is still falling at the end.
     - `task_objects`, `tool_axis_object`: to overrule training's choices (the card says what
       it chose and why).
-    - `observed_statistics`: which of each object's mask statistics the motion reads
-      ("shading" by default; "centroid" when the image inside the masks says nothing about
-      the motion).
+    - `observed_statistics`: to overrule training's choice of which of each object's mask
+      statistics the motion reads ("shading" or "all"; "centroid" when the image inside the
+      masks says nothing about the motion).
     - `draws` (1): several initialisations, the one whose motion fits best going on, when a
       seed's trajectory loss stays far above another seed's.
     - The inference settings (`search_candidates`, `search_starts`, `refine_steps`, ...):
@@ -85,8 +86,9 @@ class CnfmpConfig(MotionConfig):
     #: the recipe, became `tool_axis_object`, chosen by training. Version 4: the switch
     #: `shading_moments` became `observed_statistics`, "shading" by default. Version 5: the
     #: switches `anchored_centres` and `motion_shapes_latents` went, each keeping version 4's
-    #: default (:meth:`upgrade`).
-    config_version: int = 5
+    #: default (:meth:`upgrade`). Version 6: `observed_statistics` left out is chosen by
+    #: training (version 5 read it as "shading").
+    config_version: int = 6
 
     # ---- what the model is for (from data) ----
     #: Object slots, in label order (label k of a mask = slot k-1). A scene may leave trailing
@@ -168,11 +170,14 @@ class CnfmpConfig(MotionConfig):
     #: latent space (one per object slot): "centroid" (none more),
     #: "shading" (the offset from the centroid to the darkness-weighted centroid and the mean
     #: luminance) or "all" (also the elongation, the size and the shaded part's offset).
+    #: None (the default) lets training choose "shading" or "all" from the demonstrations
+    #: (:mod:`cnfmp.core.statistics_choice`: "all" when it predicts left-out demonstrations
+    #: significantly better; the card says what it chose and why).
     #: Shaded faces and the parts under an object's top show on one side of it, which tells a
     #: pose the template's turn cannot: a near-square ramp's template turns with its yaw only
     #: modulo a quarter turn, and the shading shows where the rising edge is (docs/
     #: experiments.md, "Shading moments", "The tool axis chosen by training").
-    observed_statistics: str = "shading"
+    observed_statistics: str | None = None
     #: Slot (0-based, in label order) of the object whose mask the direction of the tool axis
     #: is read from, or -1 for none; None (the default) lets training choose it from the
     #: demonstrations (:mod:`cnfmp.core.tool_axis`: the object whose mask statistics predict
@@ -287,7 +292,8 @@ class CnfmpConfig(MotionConfig):
         Version 3 -> 4: `shading_moments` true is `observed_statistics` "shading", false or
         left out (version 3's default) "centroid". Version 4 -> 5: the fields of
         VERSION_5_RETIRED go, likewise (a version-1 model, which had neither behaviour, is
-        refused there)."""
+        refused there). Version 5 -> 6: `observed_statistics` left out is "shading", version
+        5's default."""
         if version == 1:
             return {**VERSION_1_DEFAULTS, **values}
         if version == 2:
@@ -305,6 +311,8 @@ class CnfmpConfig(MotionConfig):
             return values
         if version == 4:
             return _retire(dict(values), VERSION_5_RETIRED, source)
+        if version == 5:
+            return {"observed_statistics": "shading", **values}
         return super().upgrade(values, version, source)
 
     @property
@@ -333,9 +341,9 @@ class CnfmpConfig(MotionConfig):
         for name in ["anneal_fraction", "draw_fraction"]:
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(f"{source}: {name} must be in [0, 1], got {getattr(self, name)!r}")
-        if self.observed_statistics not in OBSERVED_STATISTICS:
-            raise InputError(f"{source}: observed_statistics must be one of {', '.join(OBSERVED_STATISTICS)}, "
-                             f"got {self.observed_statistics!r}")
+        if self.observed_statistics is not None and self.observed_statistics not in OBSERVED_STATISTICS:
+            raise InputError(f"{source}: observed_statistics must be null (training chooses) or one of "
+                             f"{', '.join(OBSERVED_STATISTICS)}, got {self.observed_statistics!r}")
         slot = self.tool_axis_object
         if slot is not None and (isinstance(slot, bool) or not isinstance(slot, int) or slot < -1):
             raise InputError(f"{source}: tool_axis_object must be null (training chooses), -1 (none) or an "

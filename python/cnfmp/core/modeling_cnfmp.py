@@ -61,6 +61,8 @@ OBSERVED_COLUMNS = {"centroid": slice(_FIRST, _FIRST), "shading": slice(_FIRST, 
 
 def observed_width(config: CnfmpConfig) -> int:
     """How many of each object's mask statistics the motion reads beside its centroid."""
+    if config.observed_statistics is None:
+        raise InputError("observed_statistics is null: training chooses it (cnfmp train); a model needs a value")
     columns = OBSERVED_COLUMNS[config.observed_statistics]
     return columns.stop - columns.start
 

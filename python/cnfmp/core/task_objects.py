@@ -102,23 +102,33 @@ def _features(demos: core_data.Demonstrations, count: int) -> np.ndarray:
     return np.concatenate(columns, axis=1)
 
 
-def _targets(demos: core_data.Demonstrations) -> np.ndarray:
-    """(B, PHASES * D') each trajectory's TARGET_DIMS sampled at PHASES evenly spaced phases
-    of its own duration, centred per phase and dimension over the demonstrations and scaled per
-    dimension by its spread over every phase and demonstration (so a dimension that barely
-    varies at one phase does not turn its noise into unit variance); dimensions that never
-    vary are left out."""
+def phase_samples(trajectories: list[np.ndarray], dims) -> np.ndarray:
+    """(B, PHASES, len(dims)) each trajectory's columns `dims` at PHASES evenly spaced phases
+    of its own duration."""
     samples = []
-    dims = range(demos.trajectories[0].shape[1]) if demos.joint_names else TARGET_DIMS
-    for trajectory in demos.trajectories:
+    for trajectory in trajectories:
         frames = np.linspace(0.0, len(trajectory) - 1, PHASES)
         samples.append(np.stack([np.interp(frames, np.arange(len(trajectory)), trajectory[:, d])
                                  for d in dims], axis=1))
-    samples = np.asarray(samples)  # (B, PHASES, D)
+    return np.asarray(samples)
+
+
+def standardised_targets(samples: np.ndarray) -> np.ndarray:
+    """Phase samples (B, PHASES, D) -> (B, PHASES * D') regression targets: centred per phase
+    and dimension over the demonstrations and scaled per dimension by its spread over every
+    phase and demonstration (so a dimension that barely varies at one phase does not turn its
+    noise into unit variance); dimensions that never vary are left out."""
     spread = samples.reshape(-1, samples.shape[2]).std(axis=0)
     varying = spread > 1e-6
     centred = samples[:, :, varying] - samples[:, :, varying].mean(axis=0)
     return (centred / spread[varying]).reshape(len(samples), -1)
+
+
+def _targets(demos: core_data.Demonstrations) -> np.ndarray:
+    """(B, PHASES * D') the trajectories' TARGET_DIMS (every joint and the gripper in joint
+    space) as :func:`standardised_targets`."""
+    dims = range(demos.trajectories[0].shape[1]) if demos.joint_names else TARGET_DIMS
+    return standardised_targets(phase_samples(demos.trajectories, dims))
 
 
 def left_out_errors(features: np.ndarray, targets: np.ndarray) -> np.ndarray:

@@ -115,6 +115,8 @@ def model_card(kind: models.ModelType, config, summary: dict, dataset_dir: str, 
     segments = f"| segment timing | {summary['segment_timing']} |\n" if summary.get("segment_timing") else ""
     if summary.get("tool_axis"):
         objects += f"| tool axis | {summary['tool_axis']} |\n"
+    if summary.get("observed_statistics"):
+        objects += f"| mask statistics read | {summary['observed_statistics']} |\n"
     choice = summary.get("draws")
     draws = (f"| draws | {choice['count']} initialisations trained {choice['steps']} steps each; draw "
              f"{choice['chosen'] + 1} went on (trajectory loss then: "

@@ -20,6 +20,7 @@ from cnfmp.core.configuration_cnfmp import CnfmpConfig
 from cnfmp.core.layers import pixel_coords
 from cnfmp.core.modeling_cnfmp import CnfmpModel
 from cnfmp.core.motion import LossLog, demonstration_targets, motion_loss, time_basis
+from cnfmp.core.statistics_choice import choose_observed_statistics
 from cnfmp.core.tool_axis import choose_tool_axis_object
 from cnfmp.errors import InputError
 
@@ -188,8 +189,10 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
     receives progress lines (every ~5% of the steps)."""
     started = time.monotonic()
     config, tool_axis = choose_tool_axis(fit_config_to_data(config, demos), demos)
+    config, statistics = choose_statistics(config, demos)
     if log:
         log(f"tool axis: {tool_axis}")
+        log(f"mask statistics the motion reads: {statistics}")
     data = TrainingSet(demos, config)
     choice = {}
     if config.draws == 1:
@@ -221,7 +224,8 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
     timing = fit_segment_timing(model, data, demos, latents)
     summary = {"steps": config.steps, "demos": len(data), "seconds": round(time.monotonic() - started, 1),
                "final_losses": {f"{name}_mse": value for name, value in final.items()},
-               "parameters": model.parameter_count(), "tool_axis": tool_axis, **choice,
+               "parameters": model.parameter_count(), "tool_axis": tool_axis,
+               "observed_statistics": statistics, **choice,
                **({"segment_timing": timing} if timing else {})}
     return model, summary
 
@@ -239,6 +243,15 @@ def choose_tool_axis(config: CnfmpConfig, demos: core_data.Demonstrations) -> tu
     choice = choose_tool_axis_object(demos)
     chart = {"rotation_chart": "swing_twist"} if choice.slot >= 0 else {}
     return dataclasses.replace(config, tool_axis_object=choice.slot, **chart), choice.reason
+
+
+def choose_statistics(config: CnfmpConfig, demos: core_data.Demonstrations) -> tuple[CnfmpConfig, str]:
+    """`config` with `observed_statistics` chosen from `demos` where the config leaves it to
+    training (:mod:`cnfmp.core.statistics_choice`), and one line saying how it was set."""
+    if config.observed_statistics is not None:
+        return config, f"{config.observed_statistics} (set by the config)"
+    choice = choose_observed_statistics(demos)
+    return dataclasses.replace(config, observed_statistics=choice.name), choice.reason
 
 
 def fit_segment_timing(model: CnfmpModel, data: TrainingSet, demos: core_data.Demonstrations,
