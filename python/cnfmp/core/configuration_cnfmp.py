@@ -58,19 +58,17 @@ class CnfmpConfig(MotionConfig):
     """Configuration of a cnfmp model: its fields, their training and their inference.
 
     For a new task, change nothing: `cnfmp train --dataset D --out M` fills the "(from
-    data)" fields, chooses which labelled objects the task is about (`task_objects`) and
-    whether the tool axis is read from one object's mask (`tool_axis_object`), and trains the
-    default recipe (docs/benchmarks.md, "Core models", for what it reaches on the benchmark
-    tasks), after choosing which of the masks' statistics the motion reads
-    (`observed_statistics`). What a user may reasonably change, and when:
+    data)" fields, chooses from the demonstrations which labelled objects the task is about
+    (`task_objects`), which of their masks' statistics the motion reads
+    (`observed_statistics`) and whether the tool axis is read from one object's mask
+    (`tool_axis_object`), and trains the default recipe (docs/benchmarks.md, "Core models",
+    for what it reaches on the benchmark tasks). What a user may reasonably change, and when:
 
     - `steps` (2000): fewer for a quick look (the losses are printed as training goes), more
       when the trajectory loss is still falling at the end.
-    - `task_objects`, `tool_axis_object`: to overrule training's choices (the card says what
-      it chose and why).
-    - `observed_statistics`: to overrule training's choice of which of each object's mask
-      statistics the motion reads ("shading" or "all"; "centroid" when the image inside the
-      masks says nothing about the motion).
+    - `task_objects`, `observed_statistics`, `tool_axis_object`: to overrule training's
+      choices (the card says what it chose and why); `observed_statistics` "centroid" when
+      the image inside the masks says nothing about the motion.
     - `draws` (1): several initialisations, the one whose motion fits best going on, when a
       seed's trajectory loss stays far above another seed's.
     - The inference settings (`search_candidates`, `search_starts`, `refine_steps`, ...):
