@@ -6,7 +6,7 @@ darker part of the mask lies, and its brightness) or "all" (also the mask's elon
 and shaded part's offset). A task whose motion turns with an elongated object or depends on
 an object's size needs the second; on a task where it does not, five more inputs per object
 give the learned map room to fit 20-30 demonstrations in ways that do not carry to new
-scenes (docs/experiments.md, "Every mask statistic for the motion").
+scenes (docs/experiments.md, "Every mask statistic for the motion, chosen by training").
 
 So before training, each demonstration's trajectory (position, rotation as a rotation vector
 at the first demonstration's start orientation, gripper; every joint in joint space),
