@@ -39,8 +39,6 @@ MIN_SWING_RAD = np.radians(1.0)
 #: An object is chosen only when its statistics at least halve the left-out error of the
 #: demonstrations' mean swing (squared, so the error in angle falls by about 30%).
 MAX_ERROR_RATIO = 0.5
-#: Phase samples per trajectory that the regression predicts.
-PHASES = 32
 
 
 @dataclass(frozen=True)
@@ -64,14 +62,10 @@ class ToolAxisChoice:
 
 def _swings(demos: core_data.Demonstrations) -> np.ndarray:
     """(B, PHASES, 2) each demonstration's swing (rad) relative to the first demonstration's
-    start orientation, at PHASES evenly spaced phases of its own duration."""
-    reference = demos.trajectories[0][0, 3:7]
-    out = []
-    for trajectory in demos.trajectories:
-        frames = np.linspace(0.0, len(trajectory) - 1, PHASES)
-        quats = np.stack([np.interp(frames, np.arange(len(trajectory)), trajectory[:, d]) for d in range(3, 7)], -1)
-        out.append(geometry.to_swing_twist(quats, reference)[:, :2])
-    return np.asarray(out)
+    start orientation, at :data:`cnfmp.core.task_objects.PHASES` evenly spaced phases of its
+    own duration."""
+    quats = task_objects.phase_samples(demos.trajectories, range(3, 7))
+    return geometry.to_swing_twist(quats, demos.trajectories[0][0, 3:7])[..., :2]
 
 
 def choose_tool_axis_object(demos: core_data.Demonstrations) -> ToolAxisChoice:
