@@ -85,7 +85,10 @@ def test_training_with_no_task_objects_chooses_them_and_says_so_on_the_card(tmp_
     training.train("unused", str(tmp_path / "chosen"), [str(config)], progress=False)
     saved = json.loads((tmp_path / "chosen" / CONFIG_FILE).read_text())
     assert (saved["task_objects"], saved["num_objects"], saved["object_names"]) == (1, 1, ["object 1"])
-    assert "| task objects | the first 1 of 3 objects kept" in (tmp_path / "chosen" / "README.md").read_text()
+    card = (tmp_path / "chosen" / "README.md").read_text()
+    assert "| task objects | the first 1 of 3 objects kept" in card
+    # The statistics choice ran too: its value is saved and the card says why.
+    assert f"| mask statistics read | {saved['observed_statistics']}: " in card
 
     config.write_text(json.dumps({**tiny, "task_objects": 2}))
     training.train("unused", str(tmp_path / "set"), [str(config)], progress=False)
