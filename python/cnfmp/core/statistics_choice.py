@@ -62,8 +62,7 @@ def _targets(demos: core_data.Demonstrations) -> np.ndarray:
     (:func:`cnfmp.core.task_objects.standardised_targets`): position, rotation vector and
     gripper for poses, every column in joint space."""
     if demos.joint_names:
-        return task_objects.standardised_targets(
-            task_objects.phase_samples(demos.trajectories, range(demos.trajectories[0].shape[1])))
+        return task_objects.motion_targets(demos)  # every joint and the gripper
     samples = task_objects.phase_samples(demos.trajectories, range(8))
     rotation = geometry.to_tangent(samples[..., 3:7], demos.trajectories[0][0, 3:7])
     return task_objects.standardised_targets(np.concatenate([samples[..., :3], rotation, samples[..., 7:]], axis=-1))

@@ -124,7 +124,7 @@ def standardised_targets(samples: np.ndarray) -> np.ndarray:
     return (centred / spread[varying]).reshape(len(samples), -1)
 
 
-def _targets(demos: core_data.Demonstrations) -> np.ndarray:
+def motion_targets(demos: core_data.Demonstrations) -> np.ndarray:
     """(B, PHASES * D') the trajectories' TARGET_DIMS (every joint and the gripper in joint
     space) as :func:`standardised_targets`."""
     dims = range(demos.trajectories[0].shape[1]) if demos.joint_names else TARGET_DIMS
@@ -172,7 +172,7 @@ def choose_task_objects(demos: core_data.Demonstrations) -> TaskObjectChoice:
     if available < 2 or len(demos) < MIN_DEMOS:
         why = "one object" if available < 2 else f"fewer than {MIN_DEMOS} demonstrations to test on"
         return TaskObjectChoice(available, available, (), None, f"every object kept ({why})")
-    targets = _targets(demos)
+    targets = motion_targets(demos)
     errors = [left_out_errors(_features(demos, count), targets) for count in range(1, available + 1)]
     means = tuple(float(e.mean()) for e in errors)
     best = int(np.argmin(means)) + 1
