@@ -134,7 +134,8 @@ class CnfmpConfig(MotionConfig):
     #: Whether the linear part of each object's deformation is a similarity (turn and scale,
     #: unbounded and linear in the latent) times a bounded stretch, instead of a bounded map
     #: (turns up to ~50 deg, scale within ~+-50%, saturating): the template may then turn by
-    #: any angle and scale without saturating. The incline model uses it (docs/experiments.md).
+    #: any angle and scale without saturating (off by default; docs/experiments.md says
+    #: where it was measured).
     full_turns: bool = False
     #: Weight of the Lipschitz penalty (product of the learned per-layer bounds) on the
     #: latent-to-deformation networks.
