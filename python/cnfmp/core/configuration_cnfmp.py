@@ -109,8 +109,9 @@ class CnfmpConfig(MotionConfig):
     slot_can_be_absent: list[bool] = field(default_factory=list)
 
     # ---- scene fields ----
-    #: Side (px) of the square image the fields are fit to (the 128 px camera image is
-    #: area-downsampled to it).
+    #: Side (px) of the square image the fields are fit to: the camera image, of any size and
+    #: aspect ratio, is area-resampled to it (training and prediction alike, so a wide image's
+    #: squeeze is learned, not corrected).
     field_resolution: int = 64
     #: Dimension of each object's latent z_i.
     latent_dim: int = 16
