@@ -143,6 +143,8 @@ def test_version_5_retires_the_anchored_centres_switches_and_the_shipped_models_
         raw = json.load(open(path))
         if raw.get("model_type") == "cnfmp":
             config = models.read_config(os.path.dirname(path))
+            # A trained model carries training's choice, never the "choose" value null.
+            assert config.observed_statistics in ("shading", "all"), name
             assert config.config_version == 6 and config.observed_statistics == raw["observed_statistics"], name
             loaded += 1
     assert loaded >= 5
