@@ -32,7 +32,7 @@ def test_every_model_type_writes_the_current_config_version():
     assert JsonConfig.current_version() is None  # a class without the field has no versions
     for kind in models.model_types().values():
         config = kind.config_class()
-        version = 6 if isinstance(config, CnfmpConfig) else 1  # cnfmp: defaults in 2, fields renamed in 3-6
+        version = 7 if isinstance(config, CnfmpConfig) else 1  # cnfmp: defaults in 2, fields renamed or retired in 3-7
         assert kind.config_class.current_version() == version and config.config_version == version
         assert json.loads(config.to_json())["config_version"] == version
 
@@ -41,10 +41,10 @@ def test_a_config_without_a_version_is_of_the_version_its_reader_says_and_writes
     path = write_config(tmp_path / "config.json", {"model_type": "cnfmp", "steps": 7})
     # A training config file: the current version, today's defaults.
     current = CnfmpConfig.from_file(path)
-    assert (current.config_version, current.steps) == (6, 7)
+    assert (current.config_version, current.steps) == (7, 7)
     assert current.tool_axis_object is None and current.observed_statistics is None  # training chooses
     again = CnfmpConfig.from_dict(json.loads(current.to_json()))
-    assert json.loads(again.to_json())["config_version"] == 6 and again == current
+    assert json.loads(again.to_json())["config_version"] == 7 and again == current
     # A model directory written before versions existed: version 1, upgraded with its
     # defaults, which version 5 no longer trains (a centre projective in the latent).
     with pytest.raises(InputError, match=r"config.json: anchored_centres is no longer a setting .* "
@@ -52,7 +52,7 @@ def test_a_config_without_a_version_is_of_the_version_its_reader_says_and_writes
         CnfmpConfig.from_file(path, unversioned=1)
     # One that named today's behaviour loads, with what version 1 had of the later fields.
     old = CnfmpConfig.from_dict({"steps": 7, "anchored_centres": True, "motion_shapes_latents": False}, unversioned=1)
-    assert (old.config_version, old.steps) == (6, 7)
+    assert (old.config_version, old.steps) == (7, 7)
     assert old.tool_axis_object == -1  # a version-1 model never read the tool axis apart
     assert old.observed_statistics == "centroid"  # nor any mask statistic
 
@@ -145,18 +145,49 @@ def test_version_5_retires_the_anchored_centres_switches_and_the_shipped_models_
             config = models.read_config(os.path.dirname(path))
             # A trained model carries training's choice, never the "choose" value null.
             assert config.observed_statistics in ("shading", "all"), name
-            assert config.config_version == 6 and config.observed_statistics == raw["observed_statistics"], name
+            assert config.config_version == 7 and config.observed_statistics == raw["observed_statistics"], name
             loaded += 1
     assert loaded >= 5
 
 
+def test_version_7_fixes_the_method_s_own_choices_and_a_version_6_directory_predicts_as_before(tmp_path):
+    """Version 7 made eleven fields constants: a version-6 model directory loads and predicts
+    exactly as a version-7 one; a training-only or approximation field may hold any value
+    there, a prediction-shaping one only the value that stayed; a version-7 file names none."""
+    from cnfmp.core import configuration_cnfmp as c
+
+    version_6 = {"anneal_fraction": 0.25, "lipschitz_weight": 1e-4, "mask_prior_weight": 0.1, "image_weight": 2.0,
+                 "draw_fraction": 0.5, "search_pixels": 64, "texels_per_pixel": 0, "residual_grid_pixels": 0.0,
+                 **c.VERSION_7_RETIRED}
+    assert set(version_6) == set(c.VERSION_7_DROPPED) | set(c.VERSION_7_RETIRED) and len(version_6) == 11
+    demos = tiny_demonstrations()
+    model, _ = training_cnfmp.train_model(demos, CnfmpConfig(**TINY))
+    saved, old = tmp_path / "today", tmp_path / "version-6"
+    saved.mkdir()
+    models.save_model(model, str(saved))
+    shutil.copytree(saved, old)
+    values = json.loads((old / models.CONFIG_FILE).read_text())
+    assert values["config_version"] == 7 and not set(version_6) & set(values)
+    (old / models.CONFIG_FILE).write_text(json.dumps({**values, **version_6, "config_version": 6}, indent=2))
+    assert models.read_config(str(old)) == models.read_config(str(saved))
+    one, two = (models.load_predictor(str(d)).predict(demos.images[0], demos.masks[0], seed=1) for d in (saved, old))
+    for key in ("position", "orientation", "gripper"):
+        np.testing.assert_array_equal(one["trajectory"][key], two["trajectory"][key])
+    for name, kept in c.VERSION_7_RETIRED.items():
+        with pytest.raises(InputError, match=rf"{name} is no longer a setting .* retrain it"):
+            CnfmpConfig.from_dict({"config_version": 6, name: 2 * kept})
+    for name in version_6:
+        with pytest.raises(InputError, match=rf"unknown field\(s\) {name}"):
+            CnfmpConfig.from_dict({name: version_6[name]})
+
+
 def test_newer_and_malformed_versions_are_refused(tmp_path):
-    newer = write_config(tmp_path / "newer.json", {"config_version": 7, "steps": 7})
-    with pytest.raises(InputError, match=r"newer.json: config_version 7 was written by a newer cnfmp.*update cnfmp"):
+    newer = write_config(tmp_path / "newer.json", {"config_version": 8, "steps": 7})
+    with pytest.raises(InputError, match=r"newer.json: config_version 8 was written by a newer cnfmp.*update cnfmp"):
         CnfmpConfig.from_file(newer)
     # A newer file's new fields are not what is wrong with it: the version is named first.
     with pytest.raises(InputError, match="newer cnfmp"):
-        CnfmpConfig.from_dict({"config_version": 7, "a_field_of_version_7": 1})
+        CnfmpConfig.from_dict({"config_version": 8, "a_field_of_version_8": 1})
     for bad in (0, -1, "1", 1.0, True, None):
         with pytest.raises(InputError, match="config_version must be a whole number >= 1"):
             CnfmpConfig.from_dict({"config_version": bad})
@@ -237,7 +268,7 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     saved = tmp_path / "today"
     saved.mkdir()
     models.save_model(model, str(saved))
-    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 6
+    assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 7
     old = tmp_path / "before-versions"
     shutil.copytree(saved, old)
     values = json.loads((old / models.CONFIG_FILE).read_text())
@@ -254,17 +285,17 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     np.testing.assert_array_equal(one["weights"], two["weights"])
     assert one["object_mse"] == two["object_mse"]
 
-    # Were the current version 7, the directory without the key would be upgraded from
-    # version 1 (not taken as current) through 2 to 6, and the one with it from 6.
+    # Were the current version 8, the directory without the key would be upgraded from
+    # version 1 (not taken as current) through 2 to 7, and the one with it from 7.
     upgraded = []
-    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 7))
-    step = CnfmpConfig.upgrade  # the real steps up to 6, none from 6 to 7
+    monkeypatch.setattr(CnfmpConfig, "current_version", classmethod(lambda cls: 8))
+    step = CnfmpConfig.upgrade  # the real steps up to 7, none from 7 to 8
     monkeypatch.setattr(CnfmpConfig, "upgrade", classmethod(
         lambda cls, values, version, source: upgraded.append(version) or (
-            values if version == 6 else step(values, version, source))))
-    assert models.read_config(str(old)).config_version == 7 and upgraded == [1, 2, 3, 4, 5, 6]
-    assert models.read_config(str(saved)).config_version == 7 and upgraded == [1, 2, 3, 4, 5, 6, 6]
+            values if version == 7 else step(values, version, source))))
+    assert models.read_config(str(old)).config_version == 8 and upgraded == [1, 2, 3, 4, 5, 6, 7]
+    assert models.read_config(str(saved)).config_version == 8 and upgraded == [1, 2, 3, 4, 5, 6, 7, 7]
     monkeypatch.undo()
-    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 7))
-    with pytest.raises(InputError, match=r"config.json: config_version 6 .* retrain the model with `cnfmp train`"):
+    monkeypatch.setattr(JsonConfig, "current_version", classmethod(lambda cls: 8))
+    with pytest.raises(InputError, match=r"config.json: config_version 7 .* retrain the model with `cnfmp train`"):
         models.read_config(str(saved))

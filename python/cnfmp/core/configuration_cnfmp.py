@@ -41,6 +41,62 @@ VERSION_5_RETIRED = {"anchored_centres": True, "motion_shapes_latents": False}
 #: :data:`cnfmp.core.modeling_cnfmp.OBSERVED_COLUMNS`).
 OBSERVED_STATISTICS = ("centroid", "shading", "all")
 
+# ---- the method's fixed choices (config fields up to version 6) ----
+# Each is measured in docs/experiments.md; none is a setting a task needs changed.
+#: Fraction of the training steps over which the appearance and background octaves are
+#: switched on, coarse to fine.
+ANNEAL_FRACTION = 0.4
+#: Weight of the Lipschitz penalty (product of the learned per-layer bounds) on the latent-to-
+#: deformation networks.
+LIPSCHITZ_WEIGHT = 1e-6
+#: Weight of a weak mask prior: cross-entropy between the soft competition and the coarse
+#: labels at the sampled pixels. The sampling bias alone lets an expert paint other objects
+#: in the composite; this small term keeps each expert on its own object.
+MASK_PRIOR_WEIGHT = 0.05
+#: Weight of the image losses (composite + per-object) relative to the trajectory loss.
+IMAGE_WEIGHT = 1.0
+#: Weight of the centre prior: squared distance (image coordinates in [-1, 1]) between each
+#: object's template centre c(z_i) and its coarse mask's centroid, in training and in
+#: inference. The coarse masks roughly localise the objects (paper §II); this term anchors
+#: the translation part of every latent there. A template's centre is its mask's centroid plus
+#: a small latent-dependent offset (a tall object's centroid is not where its base is), and
+#: the motion reads the centroid, through a learned projective map from image to table,
+#: beside the latent: the latent is left to shape and pose, so a new scene that pairs one
+#: demonstration's position with another's pose needs no latent training never tied to a motion.
+CENTRE_PRIOR_WEIGHT = 1.0
+#: Weight of a pull of each object's simplex weights towards the simplex centre (squared
+#: distance), in training and in inference alike. Directions of the latent that the image
+#: does not determine then rest at the same place for demonstrations and new scenes, so the
+#: motion cannot read anything from them that inference would not reproduce.
+WEIGHT_PRIOR_WEIGHT = 1e-3
+#: With `draws` > 1: the fraction of `steps` each draw trains before the choice (which costs
+#: (draws - 1) x this fraction of a run in extra time).
+DRAW_FRACTION = 0.3
+#: Inference searches each object's simplex enlarged about its centre by this fraction, so a
+#: scene slightly outside the demonstrations' span stays reachable (weights down to
+#: -margin / num_endpoints).
+SIMPLEX_MARGIN = 0.5
+#: Pixels of an object's dilated mask the cheap search scores its candidates on.
+SEARCH_PIXELS = 128
+#: Inference's refinement reads each object's appearance from a grid with this many samples
+#: per field pixel along each axis, baked once per object and scene, instead of evaluating its
+#: network at every step (most of a step's cost). Training's motion refit, and a fit asked to
+#: be exact, evaluate the network.
+TEXELS_PER_PIXEL = 1
+#: Inference's refinement evaluates each object's (low-frequency) deformation residual on a
+#: grid this many field pixels apart over the fitted pixels and interpolates it, instead of at
+#: every pixel (exact fits evaluate it everywhere).
+RESIDUAL_GRID_PIXELS = 3.0
+#: Fields version 7 made fixed choices (the constants above). These shape what a trained model
+#: predicts, so a version-6 file that holds another value is refused (retrain the model).
+VERSION_7_RETIRED = {"centre_prior_weight": CENTRE_PRIOR_WEIGHT, "weight_prior_weight": WEIGHT_PRIOR_WEIGHT,
+                     "simplex_margin": SIMPLEX_MARGIN}
+#: Fields version 7 made fixed choices that a version-6 file may hold with any value: they
+#: shaped training only (the weights already carry them), or they approximated inference's
+#: exact fit (the fixed approximation then applies).
+VERSION_7_DROPPED = ("anneal_fraction", "lipschitz_weight", "mask_prior_weight", "image_weight", "draw_fraction",
+                     "search_pixels", "texels_per_pixel", "residual_grid_pixels")
+
 
 def _retire(values: dict, retired: dict, source: str) -> dict:
     """`values` (a copy, changed in place) without the `retired` fields; InputError for one
@@ -76,7 +132,8 @@ class CnfmpConfig(MotionConfig):
       in a trained model's config.json.
 
     The rest are the method's own choices, measured in docs/experiments.md; change them to
-    study the method, not to fit a task.
+    study the method, not to fit a task. Those no study here has needed changed are constants
+    of this module (its "fixed choices", e.g. CENTRE_PRIOR_WEIGHT), not fields.
     """
 
     #: Version 2: objects anchored on their masks' centroids, latents not shaped by the
@@ -85,8 +142,9 @@ class CnfmpConfig(MotionConfig):
     #: `shading_moments` became `observed_statistics`, "shading" by default. Version 5: the
     #: switches `anchored_centres` and `motion_shapes_latents` went, each keeping version 4's
     #: default (:meth:`upgrade`). Version 6: `observed_statistics` left out is chosen by
-    #: training (version 5 read it as "shading").
-    config_version: int = 6
+    #: training (version 5 read it as "shading"). Version 7: eleven of the method's own
+    #: choices left the config for constants of this module (VERSION_7_RETIRED, _DROPPED).
+    config_version: int = 7
 
     # ---- what the model is for (from data) ----
     #: Object slots, in label order (label k of a mask = slot k-1). A scene may leave trailing
@@ -124,23 +182,18 @@ class CnfmpConfig(MotionConfig):
     #: Positional-encoding octaves of the deformation fields (kept low: deformations are smooth).
     deformation_octaves: int = 2
     #: Positional-encoding octaves of the appearance and background fields; annealed in
-    #: coarse-to-fine over the first `anneal_fraction` of training.
+    #: coarse-to-fine over the first ANNEAL_FRACTION of training.
     appearance_octaves: int = 6
     #: Positional-encoding octaves of the background field (annealed like the appearance).
     #: Fewer than the objects': a detailed background paints the average of the objects'
     #: positions into the table and steals their pixels from the experts.
     background_octaves: int = 4
-    #: Fraction of the training steps over which the appearance octaves are switched on.
-    anneal_fraction: float = 0.4
     #: Whether the linear part of each object's deformation is a similarity (turn and scale,
     #: unbounded and linear in the latent) times a bounded stretch, instead of a bounded map
     #: (turns up to ~50 deg, scale within ~+-50%, saturating): the template may then turn by
     #: any angle and scale without saturating (off by default; docs/experiments.md says
     #: where it was measured).
     full_turns: bool = False
-    #: Weight of the Lipschitz penalty (product of the learned per-layer bounds) on the
-    #: latent-to-deformation networks.
-    lipschitz_weight: float = 1e-6
 
     # ---- object-centric pixel sampling ----
     #: Pixels drawn per step from each object's dilated coarse mask.
@@ -150,21 +203,6 @@ class CnfmpConfig(MotionConfig):
     #: Dilation (px at field resolution) of the coarse masks before sampling and inference.
     mask_dilation: int = 3
 
-    #: Weight of a weak mask prior: cross-entropy between the soft competition and the
-    #: coarse labels at the sampled pixels. The sampling bias alone lets an expert paint
-    #: other objects in the composite; this small term keeps each expert on its own object.
-    mask_prior_weight: float = 0.05
-
-    #: Weight of the centre prior: squared distance (image coordinates in [-1, 1]) between each
-    #: object's template centre c(z_i) and the centroid of its coarse mask, in training and
-    #: in inference. The coarse masks roughly localise the objects (paper §II); this term
-    #: anchors the translation part of every latent to that location. Each template's centre
-    #: is its mask's centroid plus a small latent-dependent offset (a tall object's centroid
-    #: is not where its base is), and the motion reads the centroid, through a learned
-    #: projective map from image to table, beside the latent: the latent is left to shape
-    #: and pose, so a new scene that pairs one demonstration's position with another's pose
-    #: needs no latent that training never tied to a motion.
-    centre_prior_weight: float = 1.0
     #: Which of each object's mask statistics (:data:`cnfmp.core.data.OBSERVATION_NAMES`) the
     #: motion reads beside its latent and centroid, through a learned linear map into the
     #: latent space (one per object slot): "centroid" (none more),
@@ -191,13 +229,6 @@ class CnfmpConfig(MotionConfig):
     #: statistics"). Set -1 to keep the swing with the latents, or a slot to overrule the choice.
     tool_axis_object: int | None = None
 
-    #: Weight of a pull of each object's simplex weights towards the simplex centre (squared
-    #: distance), in training and in inference alike. Directions of the latent that the image
-    #: does not determine then rest at the same place for demonstrations and for new scenes,
-    #: so the motion cannot read anything from them that inference would not reproduce.
-    weight_prior_weight: float = 1e-3
-
-
     # ---- motion ----
     #: Weight of the penalty on the generator's latent weights (mean square): a ridge that
     #: keeps the motion from reading more out of the latent than the demonstrations support.
@@ -218,8 +249,6 @@ class CnfmpConfig(MotionConfig):
     position_weight: float = 1.0
     rotation_weight: float = 1.0
     gripper_weight: float = 0.3
-    #: Weight of the image losses (composite + per-object) relative to the trajectory loss.
-    image_weight: float = 1.0
 
     # ---- training ----
     #: Demonstrations per step (all of them when the dataset is smaller).
@@ -228,22 +257,18 @@ class CnfmpConfig(MotionConfig):
     learning_rate: float = 2e-3
     latent_learning_rate: float = 1e-2
     #: Independent initialisations ("draws"), each trained in turn for the first
-    #: `draw_fraction` of the steps; the one whose trajectory loss is lowest over its last
+    #: DRAW_FRACTION of the steps; the one whose trajectory loss is lowest over its last
     #: logged window goes on alone. Some initialisations settle where the motion cannot fit
     #: the demonstrations (cup stacking: about one run in three; its trajectory loss is two to
     #: three times the others' after a third of the steps, ten times at the end, and the model
     #: fails nearly every scene). Draw 0 is the seed's single run, so 1 draw trains exactly as
     #: a plain seeded run.
     draws: int = 1
-    #: Fraction of `steps` each draw trains before the choice (the choice costs
-    #: (draws - 1) x this fraction of a run in extra time).
-    draw_fraction: float = 0.3
 
     # ---- inference ----
     #: The fields below: they change how a trained model predicts, not its weights (training's
     #: motion refit fits the demonstrations' latents with a search of its own,
-    #: :data:`cnfmp.core.training_cnfmp.REFIT_SEARCH`; only `inference_pixels` and
-    #: `simplex_margin` reach it).
+    #: :data:`cnfmp.core.training_cnfmp.REFIT_SEARCH`; only `inference_pixels` reaches it).
     #: Random simplex points drawn per object, ranked by the centre prior alone (where each
     #: would put the object's centre against its mask's centroid: no image is read, so
     #: thousands cost well under a millisecond); the best `search_candidates` of them go on
@@ -252,10 +277,8 @@ class CnfmpConfig(MotionConfig):
     #: Candidates of the cheap search scored on the image: random simplex points (the best of
     #: the pool, plus every training demonstration's weights and the simplex vertices).
     search_candidates: int = 24
-    #: Pixels of an object's dilated mask the cheap search scores candidates on.
-    search_pixels: int = 128
     #: A screen before that: every candidate is first scored on this many of those pixels
-    #: and only the best `search_screen_keep` go on to all `search_pixels` (the search costs
+    #: and only the best `search_screen_keep` go on to all SEARCH_PIXELS (the search costs
     #: candidates x pixels, and most candidates are far off); 0 scores every candidate on
     #: every search pixel.
     search_screen_pixels: int = 32
@@ -265,21 +288,8 @@ class CnfmpConfig(MotionConfig):
     #: Adam steps on the simplex logits per start, and their learning rate.
     refine_steps: int = 3
     refine_learning_rate: float = 0.05
-    #: The refinement reads each object's appearance from a grid with this many samples per
-    #: field pixel along each axis, baked once per object and scene, instead of evaluating its
-    #: network at every step (most of a step's cost); 0 evaluates the network. Inference only:
-    #: training's motion refit always evaluates the network.
-    texels_per_pixel: int = 1
-    #: The refinement evaluates each object's deformation residual (low-frequency) on a grid
-    #: this many field pixels apart over the fitted pixels and interpolates it, instead of at
-    #: every pixel; 0 evaluates it at every pixel. Inference only, like `texels_per_pixel`.
-    residual_grid_pixels: float = 3.0
     #: Most pixels of an object's dilated mask used by inference.
     inference_pixels: int = 256
-    #: Inference searches each object's simplex enlarged about its centre by this fraction,
-    #: so a scene slightly outside the span of the demonstrations stays reachable
-    #: (weights down to -margin / num_endpoints; 0 keeps the plain simplex).
-    simplex_margin: float = 0.5
 
     model_type: str = MODEL_TYPE
 
@@ -293,7 +303,8 @@ class CnfmpConfig(MotionConfig):
         left out (version 3's default) "centroid". Version 4 -> 5: the fields of
         VERSION_5_RETIRED go, likewise (a version-1 model, which had neither behaviour, is
         refused there). Version 5 -> 6: `observed_statistics` left out is "shading", version
-        5's default."""
+        5's default. Version 6 -> 7: the fields of VERSION_7_DROPPED go whatever their value,
+        those of VERSION_7_RETIRED as version 5's did."""
         if version == 1:
             return {**VERSION_1_DEFAULTS, **values}
         if version == 2:
@@ -313,6 +324,9 @@ class CnfmpConfig(MotionConfig):
             return _retire(dict(values), VERSION_5_RETIRED, source)
         if version == 5:
             return {"observed_statistics": "shading", **values}
+        if version == 6:
+            values = {k: v for k, v in values.items() if k not in VERSION_7_DROPPED}
+            return _retire(values, VERSION_7_RETIRED, source)
         return super().upgrade(values, version, source)
 
     @property
@@ -326,21 +340,16 @@ class CnfmpConfig(MotionConfig):
         positive = ["field_resolution", "latent_dim", "num_endpoints", "field_width", "field_layers",
                     "pixels_per_object", "uniform_pixels",
                     "gating_width", "time_samples", "batch_demos", "draws", "search_candidates",
-                    "search_starts", "search_pixels", "inference_pixels"]
+                    "search_starts", "inference_pixels"]
         for name in positive:
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise InputError(f"{source}: {name} must be a whole number >= 1, got {getattr(self, name)!r}")
         for name in ["learning_rate", "latent_learning_rate"]:
             if not getattr(self, name) > 0:
                 raise InputError(f"{source}: {name} must be > 0, got {getattr(self, name)!r}")
-        for name in ["task_objects", "texels_per_pixel", "search_pool", "search_screen_pixels", "search_screen_keep"]:
+        for name in ["task_objects", "search_pool", "search_screen_pixels", "search_screen_keep"]:
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
                 raise InputError(f"{source}: {name} must be a whole number >= 0, got {getattr(self, name)!r}")
-        if not (isinstance(self.residual_grid_pixels, (int, float)) and self.residual_grid_pixels >= 0):
-            raise InputError(f"{source}: residual_grid_pixels must be >= 0, got {self.residual_grid_pixels!r}")
-        for name in ["anneal_fraction", "draw_fraction"]:
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise InputError(f"{source}: {name} must be in [0, 1], got {getattr(self, name)!r}")
         if self.observed_statistics is not None and self.observed_statistics not in OBSERVED_STATISTICS:
             raise InputError(f"{source}: observed_statistics must be null (training chooses) or one of "
                              f"{', '.join(OBSERVED_STATISTICS)}, got {self.observed_statistics!r}")

@@ -32,7 +32,8 @@ import torch
 from cnfmp import helper_processes, runtime
 from cnfmp.core import data as core_data, segment_timing
 from cnfmp.core.adam import Adam
-from cnfmp.core.configuration_cnfmp import CnfmpConfig
+from cnfmp.core.configuration_cnfmp import (CENTRE_PRIOR_WEIGHT, RESIDUAL_GRID_PIXELS, SEARCH_PIXELS, SIMPLEX_MARGIN,
+                                             TEXELS_PER_PIXEL, WEIGHT_PRIOR_WEIGHT, CnfmpConfig)
 from cnfmp.core.layers import pixel_coords
 from cnfmp.core.modeling_cnfmp import BakedAppearance, CnfmpModel, CoarseResidual
 from cnfmp.core.motion import decode_trajectory, output_times
@@ -170,8 +171,8 @@ class Predictor:
 
     def weights_of(self, logits: torch.Tensor) -> torch.Tensor:
         """Search logits (..., K) -> weights on the endpoints, a point of the simplex enlarged
-        by the config's margin: ``(1 + m) softmax(logits) - m / K`` (sums to one)."""
-        m, k = self.config.simplex_margin, logits.shape[-1]
+        by SIMPLEX_MARGIN m: ``(1 + m) softmax(logits) - m / K`` (sums to one)."""
+        m, k = SIMPLEX_MARGIN, logits.shape[-1]
         return (1.0 + m) * torch.softmax(logits, dim=-1) - m / k
 
     def _object_loss(self, slot: int, logits: torch.Tensor, pixels: FittedPixels,
@@ -191,8 +192,7 @@ class Predictor:
         image = self.model.expert_image(rgb, logit, pixels.bg_rgb, pixels.bg_logit)
         mse = ((image - pixels.target) ** 2).mean(dim=(1, 2))
         centre_err = ((self.model.objects[slot].object_centre(latent, anchor) - pixels.centre) ** 2).sum(dim=-1)
-        return (mse + self.config.centre_prior_weight * centre_err
-                + self.config.weight_prior_weight * self.model.weight_spread(weights), mse)
+        return (mse + CENTRE_PRIOR_WEIGHT * centre_err + WEIGHT_PRIOR_WEIGHT * self.model.weight_spread(weights), mse)
 
     def _draw(self, pixels: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """The random draws of one object's search: up to `inference_pixels` of its mask's
@@ -213,7 +213,7 @@ class Predictor:
         idx = torch.from_numpy(pixels)
         fitting = FittedPixels(self.coords[idx][None], colour[None], self.bg_rgb[:, idx], self.bg_logit[:, idx],
                                rgb[idx][None], centre)
-        k, m = c.num_endpoints, c.simplex_margin
+        k, m = c.num_endpoints, SIMPLEX_MARGIN
         # Every training demonstration's weights and the endpoints themselves, mapped into the
         # search's enlarged simplex, then random points of the enlarged simplex.
         known = torch.cat([torch.softmax(self.model.demo_logits[:, slot], dim=-1), torch.eye(k)])
@@ -223,24 +223,21 @@ class Predictor:
         ])
         with torch.no_grad():
             if c.search_screen_pixels and candidates.shape[0] > max(c.search_screen_keep, c.search_starts):
-                screen = fitting.first(min(c.search_screen_pixels, c.search_pixels))
+                screen = fitting.first(min(c.search_screen_pixels, SEARCH_PIXELS))
                 losses, _ = self._object_loss(slot, candidates, screen,
                                               coarse=None if exact else self._coarse_residual(screen.coords))
                 candidates = candidates[torch.argsort(losses)[: max(c.search_screen_keep, c.search_starts)]]
-            few = fitting.first(c.search_pixels)
+            few = fitting.first(SEARCH_PIXELS)
             coarse = None if exact else self._coarse_residual(few.coords)
             losses, _ = self._object_loss(slot, candidates, few, coarse=coarse)
         return candidates[torch.argsort(losses)[: c.search_starts]].clone(), fitting
 
     def _coarse_residual(self, coords: torch.Tensor) -> CoarseResidual | None:
-        """The deformation residual's grid over the pixels `coords` (1, P, 2), at the config's
-        `residual_grid_pixels`; None (evaluate it at every pixel) for 0, or where the grid
-        would not have under half as many points as there are pixels (a few pixels spread
-        over a long object's box): interpolating would then cost more than it saves."""
-        spacing = self.config.residual_grid_pixels
-        if not spacing:
-            return None
-        grid = CoarseResidual(coords, spacing * 2.0 / self.config.field_resolution)
+        """The deformation residual's grid over the pixels `coords` (1, P, 2), RESIDUAL_GRID_PIXELS
+        field pixels apart; None (evaluate it at every pixel) where the grid would not have
+        under half as many points as there are pixels (a few pixels spread over a long
+        object's box): interpolating would then cost more than it saves."""
+        grid = CoarseResidual(coords, RESIDUAL_GRID_PIXELS * 2.0 / self.config.field_resolution)
         return grid if 2 * grid.size < coords.shape[1] else None
 
     def _nearest_centres(self, slot: int, logits: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
@@ -259,7 +256,7 @@ class Predictor:
     def _bake(self, slot: int, starts: torch.Tensor, fitting: FittedPixels) -> BakedAppearance:
         """Slot `slot`'s appearance for this scene's colour, baked over the box of template
         coordinates that its refinement starts (S, K) map the fitted pixels to, widened by
-        BAKE_MARGIN for the way the refinement moves them, at `texels_per_pixel` texels per
+        BAKE_MARGIN for the way the refinement moves them, at TEXELS_PER_PIXEL texels per
         field pixel. (The template's own support is no bound: far from what training saw,
         the appearance network may still claim pixels.)"""
         field = self.model.objects[slot]
@@ -268,7 +265,7 @@ class Predictor:
             seen = field.canonical(fitting.coords.expand(s, -1, -1),
                                    self.model.object_latent(slot, self.weights_of(starts)),
                                    anchor=fitting.centre.expand(s, -1)).reshape(-1, 2)
-        spacing = 2.0 / (self.config.field_resolution * self.config.texels_per_pixel)
+        spacing = 2.0 / (self.config.field_resolution * TEXELS_PER_PIXEL)
         return BakedAppearance(field, fitting.colour[0], seen.min(dim=0).values - BAKE_MARGIN,
                                seen.max(dim=0).values + BAKE_MARGIN, spacing)
 
@@ -279,8 +276,8 @@ class Predictor:
         MSE (None for an absent slot).
 
         A cheap search per object, then Adam refines the object's best starts (multi-start)
-        with its appearance baked for the scene (config `texels_per_pixel`); both interpolate
-        the deformation residual from a coarse grid (`residual_grid_pixels`) where that grid
+        with its appearance baked for the scene (TEXELS_PER_PIXEL); both interpolate
+        the deformation residual from a coarse grid (RESIDUAL_GRID_PIXELS) where that grid
         is much smaller than the fitted pixels. `exact` evaluates the networks at every step
         instead. The MSE and the choice among the refined starts always use the networks."""
         return self.infer_scenes([inputs], [seed], exact)[0]
@@ -353,7 +350,7 @@ class Predictor:
         colour, centre = torch.from_numpy(inputs.colour[slot]), torch.from_numpy(inputs.centre[slot])
         start, fitting = self._search(slot, *draws, rgb, colour, centre, exact)
         fast = c.refine_steps > 0 and not exact
-        baked = self._bake(slot, start, fitting) if fast and c.texels_per_pixel else None
+        baked = self._bake(slot, start, fitting) if fast else None
         coarse = self._coarse_residual(fitting.coords) if fast else None
         searched = start.detach().clone()
         lowest = torch.full((start.shape[0],), float("inf"))

@@ -16,7 +16,8 @@ import numpy as np
 import torch
 
 from cnfmp.core import data as core_data, segment_timing
-from cnfmp.core.configuration_cnfmp import CnfmpConfig
+from cnfmp.core.configuration_cnfmp import (ANNEAL_FRACTION, CENTRE_PRIOR_WEIGHT, DRAW_FRACTION, IMAGE_WEIGHT,
+                                             LIPSCHITZ_WEIGHT, MASK_PRIOR_WEIGHT, WEIGHT_PRIOR_WEIGHT, CnfmpConfig)
 from cnfmp.core.layers import pixel_coords
 from cnfmp.core.modeling_cnfmp import CnfmpModel
 from cnfmp.core.motion import LossLog, demonstration_targets, motion_loss, time_basis
@@ -143,7 +144,7 @@ class _Draw:
         model, config, rng = self.model, self.model.config, self.rng
         batch_size = min(config.batch_demos, len(data))
         for step in range(self.step, until):
-            progress = min(1.0, step / max(1.0, config.anneal_fraction * config.steps))
+            progress = min(1.0, step / max(1.0, ANNEAL_FRACTION * config.steps))
             batch = rng.choice(len(data), size=batch_size, replace=False)
             pixels = data.sample_pixels(rng, batch, config.pixels_per_object, config.uniform_pixels)
             bt = torch.from_numpy(batch)
@@ -166,10 +167,10 @@ class _Draw:
             centre_err = ((model.object_centres(latents, anchors) - anchors) ** 2).sum(dim=-1)
             centre_prior = (centre_err * present).sum() / present.sum().clamp(min=1)
             weight_prior = (model.weight_spread(weights) * present).sum() / present.sum().clamp(min=1)
-            loss = (config.image_weight * (composite + local) + motion + config.mask_prior_weight * mask_prior
-                    + config.centre_prior_weight * centre_prior + config.weight_prior_weight * weight_prior
+            loss = (IMAGE_WEIGHT * (composite + local) + motion + MASK_PRIOR_WEIGHT * mask_prior
+                    + CENTRE_PRIOR_WEIGHT * centre_prior + WEIGHT_PRIOR_WEIGHT * weight_prior
                     + config.generator_weight_decay * model.motion_penalty()
-                    + config.lipschitz_weight * lipschitz)
+                    + LIPSCHITZ_WEIGHT * lipschitz)
             self.optimiser.zero_grad(set_to_none=True)
             loss.backward()
             self.optimiser.step()
@@ -198,7 +199,7 @@ def train_model(demos: core_data.Demonstrations, config: CnfmpConfig, log=None) 
     if config.draws == 1:
         run = _Draw(config, data, 0, log)
     else:
-        until = max(1, round(config.draw_fraction * config.steps))
+        until = max(1, round(DRAW_FRACTION * config.steps))
         draws = []
         for index in range(config.draws):
             prefix = f"draw {index + 1}/{config.draws}: "
