@@ -214,7 +214,7 @@ def test_save_and_load_give_identical_outputs(trained, tmp_path, demos):
     with torch.no_grad():
         for m in (model, loaded):
             m.eval()
-        a, b = (m.scene(coords, m.latents(weights, present), colours, present, anchors=centroids)["rgb"]
+        a, b = (m.scene(coords, m.latents(weights, present), colours, present, anchors=centroids).rgb
                 for m in (model, loaded))
         torch.testing.assert_close(a, b, rtol=0, atol=0)
         t = torch.linspace(0, 1, 30)

@@ -40,8 +40,8 @@ def reconstruction(model, fit, lower: np.ndarray, upper: np.ndarray, spacing_m: 
     with torch.no_grad():
         for chunk in np.array_split(box.astype(np.float32), max(1, len(box) // 32768)):
             scene = model.scene(torch.from_numpy(chunk)[None], fit.latents[None], fit.anchors[None])
-            occupancy.append(scene["occupancy"][0].numpy())
-            owner.append(scene["mask_logits"][0].argmax(dim=0).numpy())
+            occupancy.append(scene.occupancy[0].numpy())
+            owner.append(scene.mask_logits[0].argmax(dim=0).numpy())
     volume = np.concatenate(occupancy).reshape(gx.shape)
     owners = np.concatenate(owner).reshape(gx.shape)
     vertices, triangles = mcubes.marching_cubes(volume, 0.5)

@@ -459,8 +459,8 @@ class Predictor:
             rendered.update(zip(missing, drawn))
             scene = self.model.composite([rendered[slot] for slot in range(self.config.num_objects)], present[None],
                                          (self.bg_rgb, self.bg_logit))
-        recon = scene["rgb"][0]
-        owner = scene["masks"][0].argmax(dim=0).numpy()
+        recon = scene.rgb[0]
+        owner = scene.masks[0].argmax(dim=0).numpy()
         ious = []
         for slot in range(self.config.num_objects):
             if not present[slot]:

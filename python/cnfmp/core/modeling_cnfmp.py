@@ -31,6 +31,8 @@ Coordinates are image coordinates in [-1, 1]^2 (x right, y down); time is normal
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 from torch import nn
@@ -215,6 +217,25 @@ class CoarseResidual:
         return out[..., 0].transpose(1, 2)
 
 
+@dataclass
+class SceneRender:
+    """A rendered scene (:meth:`CnfmpModel.scene`): B scenes, N object slots, P pixels."""
+
+    #: The composite image (B, P, 3).
+    rgb: torch.Tensor
+    #: Each object's own colour field (B, N, P, 3).
+    object_rgb: torch.Tensor
+    #: The background's colour field (B, P, 3).
+    background_rgb: torch.Tensor
+    #: The soft competition's logits (B, N + 1, P): the objects' then the background's (an
+    #: absent object's at -1e4).
+    logits: torch.Tensor
+    #: Their softmax over the slots (B, N + 1, P): each pixel's share per object and background.
+    masks: torch.Tensor
+    #: Each object's template coordinates at the pixels (B, N, P, 2).
+    canonical: torch.Tensor
+
+
 class CnfmpModel(nn.Module):
     """Scene fields, latents and motion of one task (shapes: B scenes, N objects, K endpoints,
     D latent size, P pixels, T times)."""
@@ -299,22 +320,18 @@ class CnfmpModel(nn.Module):
         out = self.background(fourier_features(coords, self.config.background_octaves, progress))
         return torch.sigmoid(out[..., :3]), out[..., 3]
 
-    def scene(self, coords, latents, colours, present, anchors, progress=None, map_objects=map) -> dict:
-        """Renders the scene at `coords` (B, P, 2). `map_objects` maps the per-object rendering
-        over the slots (inference passes a thread pool's map to render objects in parallel);
-        `anchors` (B, N, 2): the mask centroids.
-
-        Returns ``{"rgb": (B, P, 3) composite, "object_rgb": (B, N, P, 3), "logits":
-        (B, N + 1, P) object logits then background (absent objects at -inf), "masks":
-        (B, N + 1, P) softmax of the logits, "canonical": (B, N, P, 2) template coordinates}``.
-        """
+    def scene(self, coords, latents, colours, present, anchors, progress=None, map_objects=map) -> SceneRender:
+        """Renders the scene at `coords` (B, P, 2) for object latents (B, N, D), colours
+        (B, N, 3), presence (B, N) bool and mask centroids `anchors` (B, N, 2). `map_objects`
+        maps the per-object rendering over the slots (inference passes a thread pool's map to
+        render objects in parallel)."""
         rendered = map_objects(lambda slot: self.objects[slot](coords, latents[:, slot], colours[:, slot],
                                                                anchors[:, slot], progress),
                                range(len(self.objects)))
         return self.composite(list(rendered), present, self.background_terms(coords, progress))
 
     @staticmethod
-    def composite(rendered: list[tuple], present: torch.Tensor, background: tuple) -> dict:
+    def composite(rendered: list[tuple], present: torch.Tensor, background: tuple) -> SceneRender:
         """The scene of :meth:`scene` from its parts: per slot the (rgb (B, P, 3), mask logit
         (B, P), canonical (B, P, 2)) an object field returns, presence (B, N) bool, and the
         background's (rgb (B, P, 3), logit (B, P))."""
@@ -327,9 +344,9 @@ class CnfmpModel(nn.Module):
         all_logits = torch.stack(logits + [bg_logit], dim=1)
         masks = torch.softmax(all_logits, dim=1)
         all_rgb = torch.stack(rgbs + [bg_rgb], dim=1)
-        return {"rgb": (masks[..., None] * all_rgb).sum(dim=1), "object_rgb": torch.stack(rgbs, dim=1),
-                "logits": all_logits, "masks": masks, "canonical": torch.stack(canonicals, dim=1),
-                "background_rgb": bg_rgb}
+        return SceneRender(rgb=(masks[..., None] * all_rgb).sum(dim=1), object_rgb=torch.stack(rgbs, dim=1),
+                           background_rgb=bg_rgb, logits=all_logits, masks=masks,
+                           canonical=torch.stack(canonicals, dim=1))
 
     @staticmethod
     def expert_image(object_rgb, object_logit, bg_rgb, bg_logit) -> torch.Tensor:

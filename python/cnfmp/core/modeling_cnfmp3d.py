@@ -23,6 +23,7 @@ positions of the motion: metres, then normalised as every model's (:mod:`cnfmp.c
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -120,6 +121,18 @@ class BakedTemplate:
         return out.view(2, b, p).permute(1, 2, 0)
 
 
+
+@dataclass
+class OccupancyRender:
+    """The scene at a set of points (:meth:`Cnfmp3dModel.scene`): B scenes, N slots, P points."""
+
+    #: The composite occupancy (B, P) in [0, 1].
+    occupancy: torch.Tensor
+    #: Occupancy logits (B, N + 1, P): per object slot, then the background.
+    occupancy_logits: torch.Tensor
+    #: The soft competition's logits (B, N + 1, P), ordered likewise.
+    mask_logits: torch.Tensor
+
 class Cnfmp3dModel(nn.Module):
     """Occupancy fields, latents and motion of one task (B scenes, N objects, K endpoints,
     D latent size, P points, T times)."""
@@ -165,16 +178,16 @@ class Cnfmp3dModel(nn.Module):
         """Box coordinates (B, P, 3) -> (occupancy logit, mask logit) (B, P, 2)."""
         return self.background(fourier_features(coords, self.config.background_octaves))
 
-    def scene(self, coords: torch.Tensor, latents: torch.Tensor, anchors: torch.Tensor) -> dict:
-        """The scene at `coords` (B, P, 3): ``{"occupancy": (B, P) composite in [0, 1],
-        "occupancy_logits": (B, N + 1, P) per slot then background, "mask_logits": (B, N + 1, P)}``."""
+    def scene(self, coords: torch.Tensor, latents: torch.Tensor, anchors: torch.Tensor) -> OccupancyRender:
+        """The scene at `coords` (B, P, 3) box coordinates, for latents (B, N, D) and object
+        anchors (B, N, 3)."""
         parts = [field(coords, latents[:, k], anchors[:, k]) for k, field in enumerate(self.objects)]
         background = self.background_terms(coords)
         occupancy_logits = torch.stack([o for o, _ in parts] + [background[..., 0]], dim=1)
         mask_logits = torch.stack([m for _, m in parts] + [background[..., 1]], dim=1)
         masks = torch.softmax(mask_logits, dim=1)
-        return {"occupancy": (masks * torch.sigmoid(occupancy_logits)).sum(dim=1),
-                "occupancy_logits": occupancy_logits, "mask_logits": mask_logits}
+        return OccupancyRender(occupancy=(masks * torch.sigmoid(occupancy_logits)).sum(dim=1),
+                               occupancy_logits=occupancy_logits, mask_logits=mask_logits)
 
     @staticmethod
     def expert_occupancy(object_terms: torch.Tensor, background_terms: torch.Tensor) -> torch.Tensor:

@@ -19,7 +19,7 @@ from cnfmp.core import data as core_data, segment_timing
 from cnfmp.core.configuration_cnfmp import (ANNEAL_FRACTION, CENTRE_PRIOR_WEIGHT, DRAW_FRACTION, IMAGE_WEIGHT,
                                              LIPSCHITZ_WEIGHT, MASK_PRIOR_WEIGHT, WEIGHT_PRIOR_WEIGHT, CnfmpConfig)
 from cnfmp.core.layers import pixel_coords
-from cnfmp.core.modeling_cnfmp import CnfmpModel
+from cnfmp.core.modeling_cnfmp import CnfmpModel, SceneRender
 from cnfmp.core.motion import LossLog, demonstration_targets, motion_loss, time_basis
 from cnfmp.core.statistics_choice import choose_observed_statistics
 from cnfmp.core.tool_axis import choose_tool_axis_object
@@ -91,18 +91,18 @@ class TrainingSet:
         return torch.from_numpy(np.stack(rows))
 
 
-def image_losses(model: CnfmpModel, scene: dict, target: torch.Tensor, present: torch.Tensor,
+def image_losses(model: CnfmpModel, scene: SceneRender, target: torch.Tensor, present: torch.Tensor,
                  per_object: int) -> tuple[torch.Tensor, torch.Tensor]:
     """(composite MSE over every sampled pixel, mean per-object expert MSE over each present
     object's own block of pixels)."""
-    composite = torch.mean((scene["rgb"] - target) ** 2)
+    composite = torch.mean((scene.rgb - target) ** 2)
     n = model.config.num_objects
-    logits = scene["logits"]
+    logits = scene.logits
     local, count = torch.zeros(()), torch.zeros(())
     for k in range(n):
         block = slice(k * per_object, (k + 1) * per_object)
-        expert = model.expert_image(scene["object_rgb"][:, k, block], logits[:, k, block],
-                                    scene["background_rgb"][:, block], logits[:, n, block])
+        expert = model.expert_image(scene.object_rgb[:, k, block], logits[:, k, block],
+                                    scene.background_rgb[:, block], logits[:, n, block])
         err = ((expert - target[:, block]) ** 2).mean(dim=(1, 2))
         local = local + (err * present[:, k]).sum()
         count = count + present[:, k].sum()
@@ -159,7 +159,7 @@ class _Draw:
             # Logits are ordered objects then background; labels 0 = background, k = object k.
             label = torch.gather(data.labels[bt], 1, pixels)
             label = torch.where(label == 0, torch.full_like(label, config.num_objects), label - 1)
-            mask_prior = torch.nn.functional.cross_entropy(scene["logits"], label)
+            mask_prior = torch.nn.functional.cross_entropy(scene.logits, label)
             frames = torch.from_numpy(rng.integers(0, data.frames, size=config.time_samples))
             motion = motion_loss(model.config, model.motion(data.times[frames], latents, present, data.observations[bt]),
                                  data.targets[bt][:, frames])

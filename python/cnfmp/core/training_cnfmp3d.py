@@ -83,9 +83,8 @@ class ScanSamples:
     def __len__(self) -> int:
         return self.anchors.shape[0]
 
-    def draw(self, rng: np.random.Generator) -> dict:
-        """One step's samples of every demonstration: {"points" (B, P, 3), "occupied",
-        "known", "coarse" (B, P), "blocks": per kind its slice of P}."""
+    def draw(self, rng: np.random.Generator) -> "StepSamples":
+        """One step's samples of every demonstration."""
         parts, blocks, start = {f: [] for f in ("points", "occupied", "known", "coarse")}, [], 0
         for kind, count in zip(self.kinds, self.counts):
             index = torch.from_numpy(rng.integers(0, kind["points"].shape[1], count))
@@ -93,25 +92,41 @@ class ScanSamples:
                 parts[field].append(kind[field][:, index])
             blocks.append(slice(start, start + count))
             start += count
-        return {**{f: torch.cat(v, dim=1) for f, v in parts.items()}, "blocks": blocks}
+        return StepSamples(**{f: torch.cat(v, dim=1) for f, v in parts.items()}, blocks=blocks)
 
 
-def scene_losses(model: Cnfmp3dModel, batch: dict, latents: torch.Tensor, anchors: torch.Tensor) -> dict:
+@dataclasses.dataclass
+class StepSamples:
+    """One training step's labelled samples of every demonstration (B demonstrations, P
+    samples): each object's near-surface block, then the background's and the uniform one."""
+
+    #: Sample positions (B, P, 3), box coordinates.
+    points: torch.Tensor
+    #: Whether each sample is occupied (B, P) float, and whether the scan tells (B, P) bool.
+    occupied: torch.Tensor
+    known: torch.Tensor
+    #: Coarse slot label per sample (B, P) int64 (N: the background).
+    coarse: torch.Tensor
+    #: Per kind (each object, the background, uniform) its slice of P.
+    blocks: list[slice]
+
+
+def scene_losses(model: Cnfmp3dModel, batch: StepSamples, latents: torch.Tensor, anchors: torch.Tensor) -> dict:
     """The scene's losses on one step's samples: composite occupancy (BCE on the carved
     points), each object's expert against the background on its own samples, the mask
     logits against the coarse labels."""
-    scene = model.scene(batch["points"], latents, anchors)
-    known, occupied = batch["known"].float(), batch["occupied"]
+    scene = model.scene(batch.points, latents, anchors)
+    known, occupied = batch.known.float(), batch.occupied
     bce = lambda p, target, weight: (F.binary_cross_entropy(p.clamp(1e-5, 1 - 1e-5), target, reduction="none")  # noqa: E731
                                      * weight).sum() / weight.sum().clamp(min=1.0)
-    composite = bce(scene["occupancy"], occupied, known)
-    terms = torch.stack([scene["occupancy_logits"], scene["mask_logits"]], dim=-1)  # (B, N + 1, P, 2)
+    composite = bce(scene.occupancy, occupied, known)
+    terms = torch.stack([scene.occupancy_logits, scene.mask_logits], dim=-1)  # (B, N + 1, P, 2)
     expert = []
     for k in range(model.config.num_objects):
-        block = batch["blocks"][k]
+        block = batch.blocks[k]
         expert.append(bce(model.expert_occupancy(terms[:, k, block], terms[:, -1, block]),
                           occupied[:, block], known[:, block]))
-    masks = F.cross_entropy(scene["mask_logits"], batch["coarse"])
+    masks = F.cross_entropy(scene.mask_logits, batch.coarse)
     return {"occupancy": composite, "expert": torch.stack(expert).mean(), "masks": masks}
 
 
