@@ -258,11 +258,10 @@ class CnfmpConfig(MotionConfig):
     latent_learning_rate: float = 1e-2
     #: Independent initialisations ("draws"), each trained in turn for the first
     #: DRAW_FRACTION of the steps; the one whose trajectory loss is lowest over its last
-    #: logged window goes on alone. Some initialisations settle where the motion cannot fit
-    #: the demonstrations (cup stacking: about one run in three; its trajectory loss is two to
-    #: three times the others' after a third of the steps, ten times at the end, and the model
-    #: fails nearly every scene). Draw 0 is the seed's single run, so 1 draw trains exactly as
-    #: a plain seeded run.
+    #: logged window goes on alone: a guard against an initialisation that settles where the
+    #: motion cannot fit the demonstrations (its trajectory loss then stands well above other
+    #: seeds' early on; docs/experiments.md, "Training draws"). Draw 0 is the seed's single
+    #: run, so 1 draw trains exactly as a plain seeded run.
     draws: int = 1
 
     # ---- inference ----
