@@ -28,6 +28,27 @@ def write_config(path, values: dict) -> str:
     return str(path)
 
 
+def saved_model_and_copy(tmp_path, copy_name: str):
+    """(demonstrations, model, its saved directory, a copy of that directory) of a tiny model."""
+    demos = tiny_demonstrations()
+    model, _ = training_cnfmp.train_model(demos, CnfmpConfig(**TINY))
+    saved, copy = tmp_path / "today", tmp_path / copy_name
+    saved.mkdir()
+    models.save_model(model, str(saved))
+    shutil.copytree(saved, copy)
+    return demos, model, saved, copy
+
+
+def predict_both(demos, directories, scene: int, seed: int) -> list[dict]:
+    """Each model directory's prediction of demonstration `scene`, after asserting that they
+    predict the same trajectory."""
+    one, two = (models.load_predictor(str(d)).predict(demos.images[scene], demos.masks[scene], seed=seed)
+                for d in directories)
+    for key in ("position", "orientation", "gripper"):
+        np.testing.assert_array_equal(one["trajectory"][key], two["trajectory"][key])
+    return [one, two]
+
+
 def test_every_model_type_writes_the_current_config_version():
     assert JsonConfig.current_version() is None  # a class without the field has no versions
     for kind in models.model_types().values():
@@ -100,12 +121,7 @@ def test_version_3_shading_moments_become_the_observed_statistics_and_a_version_
 
     from safetensors.torch import load_file, save_file
 
-    demos = tiny_demonstrations()
-    model, _ = training_cnfmp.train_model(demos, CnfmpConfig(**TINY))
-    saved, old = tmp_path / "today", tmp_path / "version-3"
-    saved.mkdir()
-    models.save_model(model, str(saved))
-    shutil.copytree(saved, old)
+    demos, _, saved, old = saved_model_and_copy(tmp_path, "version-3")
     values = json.loads((old / models.CONFIG_FILE).read_text())
     assert values.pop("observed_statistics") == "shading"
     values.update(config_version=3, shading_moments=True)
@@ -115,9 +131,7 @@ def test_version_3_shading_moments_become_the_observed_statistics_and_a_version_
     save_file(tensors, str(old / models.WEIGHTS_FILE))
 
     assert models.read_config(str(old)) == models.read_config(str(saved))
-    one, two = (models.load_predictor(str(d)).predict(demos.images[1], demos.masks[1], seed=2) for d in (saved, old))
-    for key in ("position", "orientation", "gripper"):
-        np.testing.assert_array_equal(one["trajectory"][key], two["trajectory"][key])
+    predict_both(demos, (saved, old), scene=1, seed=2)
 
 
 def test_version_5_retires_the_anchored_centres_switches_and_the_shipped_models_load(tmp_path):
@@ -160,19 +174,12 @@ def test_version_7_fixes_the_method_s_own_choices_and_a_version_6_directory_pred
                  "draw_fraction": 0.5, "search_pixels": 64, "texels_per_pixel": 0, "residual_grid_pixels": 0.0,
                  **c.VERSION_7_RETIRED}
     assert set(version_6) == set(c.VERSION_7_DROPPED) | set(c.VERSION_7_RETIRED) and len(version_6) == 11
-    demos = tiny_demonstrations()
-    model, _ = training_cnfmp.train_model(demos, CnfmpConfig(**TINY))
-    saved, old = tmp_path / "today", tmp_path / "version-6"
-    saved.mkdir()
-    models.save_model(model, str(saved))
-    shutil.copytree(saved, old)
+    demos, _, saved, old = saved_model_and_copy(tmp_path, "version-6")
     values = json.loads((old / models.CONFIG_FILE).read_text())
     assert values["config_version"] == 7 and not set(version_6) & set(values)
     (old / models.CONFIG_FILE).write_text(json.dumps({**values, **version_6, "config_version": 6}, indent=2))
     assert models.read_config(str(old)) == models.read_config(str(saved))
-    one, two = (models.load_predictor(str(d)).predict(demos.images[0], demos.masks[0], seed=1) for d in (saved, old))
-    for key in ("position", "orientation", "gripper"):
-        np.testing.assert_array_equal(one["trajectory"][key], two["trajectory"][key])
+    predict_both(demos, (saved, old), scene=0, seed=1)
     for name, kept in c.VERSION_7_RETIRED.items():
         with pytest.raises(InputError, match=rf"{name} is no longer a setting .* retrain it"):
             CnfmpConfig.from_dict({"config_version": 6, name: 2 * kept})
@@ -263,14 +270,8 @@ def tiny_demonstrations() -> core_data.Demonstrations:
 
 
 def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without_it(tmp_path, monkeypatch):
-    demos = tiny_demonstrations()
-    model, _ = training_cnfmp.train_model(demos, CnfmpConfig(**TINY))
-    saved = tmp_path / "today"
-    saved.mkdir()
-    models.save_model(model, str(saved))
+    demos, model, saved, old = saved_model_and_copy(tmp_path, "before-versions")
     assert json.loads((saved / models.CONFIG_FILE).read_text())["config_version"] == 7
-    old = tmp_path / "before-versions"
-    shutil.copytree(saved, old)
     values = json.loads((old / models.CONFIG_FILE).read_text())
     del values["config_version"]
     # Version-1 files named the two switches that version 5 retired (every file written
@@ -279,9 +280,7 @@ def test_a_saved_model_directory_carries_its_version_and_loads_as_before_without
     (old / models.CONFIG_FILE).write_text(json.dumps(values, indent=2))
 
     assert models.read_config(str(old)) == models.read_config(str(saved)) == model.config
-    one, two = (models.load_predictor(str(d)).predict(demos.images[1], demos.masks[1], seed=2) for d in (saved, old))
-    for key in ("position", "orientation", "gripper"):
-        np.testing.assert_array_equal(one["trajectory"][key], two["trajectory"][key])
+    one, two = predict_both(demos, (saved, old), scene=1, seed=2)
     np.testing.assert_array_equal(one["weights"], two["weights"])
     assert one["object_mse"] == two["object_mse"]
 
