@@ -171,3 +171,22 @@ def test_the_curve_chart_draws_a_line_per_task_in_its_colour_and_skips_missing_p
     right = rgb[:, 930:960]
     assert (np.abs(right.astype(int) - PALETTE[0]).sum(axis=2) < 10).any()
     assert not (np.abs(right.astype(int) - PALETTE[1]).sum(axis=2) < 10).any()
+
+
+def test_the_curve_chart_labels_a_point_above_its_axis_with_its_value():
+    import cv2
+
+    from cnfmp.core.report import curve_chart
+
+    def chart(med_cm: float) -> np.ndarray:
+        results = [{"task": "wall_avoidance", "demos": 5, "med_cm": med_cm, "success_rate": 0.1},
+                   {"task": "wall_avoidance", "demos": 10, "med_cm": 1.0, "success_rate": 0.9}]
+        return cv2.imdecode(np.frombuffer(curve_chart(json.dumps(results), ["wall_avoidance"], [5, 10]), np.uint8),
+                            cv2.IMREAD_COLOR)
+
+    # The MED axis stops at 10 cm: 14 and 50 draw the same point and line, and differ only by
+    # the label beside it; 10 is on the axis and has none.
+    on_axis, clipped, far = chart(10.0), chart(14.0), chart(50.0)
+    assert (clipped != far).any() and (clipped != on_axis).any()
+    columns = np.flatnonzero((clipped != far).any(axis=(0, 2)))
+    assert 500 < columns.min() and columns.max() < 620, columns  # beside the 5-demonstration point (x 510)

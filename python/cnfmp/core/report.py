@@ -102,13 +102,16 @@ def _curve_panel(canvas, top, height, left, width, title, values, tasks, sizes, 
         _text(canvas, str(size), (x_of(size) - 6, bottom + 18), 0.4)
     _text(canvas, "demonstrations", (left + width - 110, bottom + 34), 0.4)
     for t, task in enumerate(tasks):
-        points = [(x_of(s), bottom - min(values[(task, s)], top_value) / top_value * height) for s in sizes
-                  if values.get((task, s)) is not None and math.isfinite(values[(task, s)])]
+        shown = [(s, values[(task, s)]) for s in sizes
+                 if values.get((task, s)) is not None and math.isfinite(values[(task, s)])]
+        points = [(x_of(s), bottom - min(v, top_value) / top_value * height) for s, v in shown]
         colour = PALETTE[t % len(PALETTE)]
         for a, b in zip(points, points[1:]):
             cv2.line(canvas, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), colour, 2, cv2.LINE_AA)
-        for x, y in points:
+        for (x, y), (_, value) in zip(points, shown):
             cv2.circle(canvas, (int(x), int(y)), 4, colour, -1, cv2.LINE_AA)
+            if value > top_value:  # clipped at the axis top: say how far it goes
+                _text(canvas, fmt(value), (x + 8, y + 5), 0.38, colour)
 
 
 def curve_chart(results_json: str, tasks: list[str], sizes: list[int]) -> bytes:
