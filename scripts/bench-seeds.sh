@@ -2,8 +2,9 @@
 # Seed spread of the default recipe: per task, the training set of scripts/demos.sh, one
 # `cnfmp train` with no config per training seed, and `cnfmp eval` on 100 held-out scenes
 # (seeds 1000000..1000099); prints success (95% interval), MED, training time and latency per
-# task and seed, then each task's median and worst seed. Two jobs at a time (one torch thread
-# each): on 2 cores the times are near those of a job alone, not equal to them.
+# task and seed, then each task's median and worst seed. Two jobs at a time, each training
+# with the cores divided among the jobs (one torch thread each on 2 cores): the training
+# times are those of `cnfmp train --threads 1` beside another job, not of a training alone.
 # Usage: scripts/bench-seeds.sh [TASK ...]   (default the five 2D tasks of models/ and bar_into_tray)
 # Environment: SEEDS (default "0 1 2"), EPISODES (default 100), JOBS (default 2),
 #   BENCH_OUT (default a temporary directory: datasets, models, logs and per-episode JSON).
@@ -16,6 +17,7 @@ tasks=("$@")
 read -r -a seeds <<< "${SEEDS:-0 1 2}"
 episodes=${EPISODES:-100}
 jobs=${JOBS:-2}
+threads=$(( $(nproc) / jobs )); ((threads >= 1)) || threads=1
 out=${BENCH_OUT:-$(mktemp -d)}
 cnfmp=target/release/cnfmp
 [[ -x $cnfmp ]] || die "no $cnfmp: run make build first"
@@ -36,7 +38,7 @@ train_and_eval() {
     [[ -f $out/evals/$name.json ]] && return 0
     rm -rf "$out/models/$name"
     $cnfmp train --dataset "$out/datasets/$task-${DEMOS[$task]}" --out "$out/models/$name" --seed "$seed" \
-        > "$out/logs/train-$name.json" 2> "$out/logs/train-$name.log"
+        --threads "$threads" > "$out/logs/train-$name.json" 2> "$out/logs/train-$name.log"
     CNFMP_INFERENCE_THREADS=1 $cnfmp eval --model "$out/models/$name" --task "$task" --episodes "$episodes" \
         --seed-start 1000000 --json "$out/evals/$name.json.partial" > /dev/null 2> "$out/logs/eval-$name.log"
     mv "$out/evals/$name.json.partial" "$out/evals/$name.json"

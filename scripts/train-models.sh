@@ -25,7 +25,7 @@ train_one() {
     # drawer_place's file names the model type of scans; every other task has none.
     local config=()
     [[ -f configs/core/$task.json ]] && config=(--config "configs/core/$task.json")
-    target/release/cnfmp train --dataset "$datasets/$task-$n" --out "$models/$task" "${config[@]}" \
+    target/release/cnfmp train --dataset "$datasets/$task-$n" --out "$models/$task" --threads 1 "${config[@]}" \
         2> >(sed "s/^/[$task] /" >&2)
 }
 running=0

@@ -54,6 +54,8 @@ fn train_predict_eval_and_bad_inputs() {
         "20",
         "--seed",
         "4",
+        "--threads",
+        "2",
     ]);
     assert!(output.status.success(), "{}", stderr(&output));
     let report: Value = serde_json::from_slice(&output.stdout).unwrap();
@@ -72,6 +74,22 @@ fn train_predict_eval_and_bad_inputs() {
         card.contains("--steps 20 --seed 4"),
         "the card records the command: {card}"
     );
+    // --threads wins over CNFMP_TORCH_THREADS, which the tests set to 1.
+    assert!(card.contains("2 torch thread(s)"), "the card records the training's threads: {card}");
+    // Without either, training uses every core the process may use.
+    let default_threads = dir.path().join("default-threads");
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_cnfmp"))
+        .args(["train", "--dataset", arg(&dataset), "--out", arg(&default_threads), "--config", arg(&config)])
+        .args(["--steps", "2"])
+        .env_remove("CNFMP_TORCH_THREADS")
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{}", stderr(&output));
+    let cores = std::thread::available_parallelism().unwrap().get();
+    let card = std::fs::read_to_string(default_threads.join("README.md")).unwrap();
+    assert!(card.contains(&format!("{cores} torch thread(s)")), "{cores} cores: {card}");
+    let no_threads = cnfmp(&["train", "--dataset", arg(&dataset), "--out", arg(&dir.path().join("y")), "--threads", "0"]);
+    assert!(!no_threads.status.success() && stderr(&no_threads).contains("--threads"), "{}", stderr(&no_threads));
     let again = cnfmp(&[
         "train",
         "--dataset",

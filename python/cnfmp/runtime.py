@@ -7,7 +7,9 @@ worker thread right after start-up, pytest does it from ``conftest.py``. Environ
 variables that the user already set win over these defaults.
 
 Why: torch's pip wheel uses libgomp, whose threads spin-wait; on the 2 shared cores of our
-machines two intra-op threads collapsed throughput (``../shared/facts.md``). Nothing may
+machines two intra-op threads collapsed a server's throughput (``../shared/facts.md``), so
+one thread is the default. Training, which owns the machine, runs one per core with a short
+spin (:data:`GOMP_SPIN_COUNT`), which keeps trainings side by side from collapsing. Nothing may
 reach a model hub at run time, so the Hugging Face libraries are forced offline.
 """
 
@@ -27,6 +29,12 @@ ENV_DEFAULTS = {
 }
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+#: libgomp's spin count at a barrier before a waiting thread sleeps, with several intra-op
+#: threads. Its default (300,000) keeps a thread spinning while its peer waits for a core,
+#: so two 2-thread trainings on 2 cores took 3.1x as long as one alone; at 1000 they take
+#: 1.5x, one alone costs what it did (150 cup_stacking steps 13.9 s against 13.6) and a
+#: passive wait (0) loses most of the second thread's gain (18.0 s; 1 thread 20.3 s).
+GOMP_SPIN_COUNT = "1000"
 
 _configured_threads: int | None = None
 
@@ -62,6 +70,8 @@ def configure(threads: int = 1) -> dict:
     for key in _THREAD_VARS:
         # libgomp reads these when torch loads it, so they must be set before the import.
         os.environ.setdefault(key, str(threads))
+    if threads > 1:
+        os.environ.setdefault("GOMP_SPINCOUNT", GOMP_SPIN_COUNT)
 
     _configured_threads = threads
     # torch and OpenCV take seconds to import; a command that never needs them (rendering a

@@ -46,11 +46,16 @@ def test_configure_sets_threads_before_torch_loads_in_a_fresh_process():
         "assert 'torch' not in sys.modules\n"
         "runtime.configure(threads=2)\n"
         "import torch\n"
-        "print(os.environ['OMP_NUM_THREADS'], torch.get_num_threads(), torch.get_num_interop_threads())\n"
+        "print(os.environ['OMP_NUM_THREADS'], torch.get_num_threads(), torch.get_num_interop_threads(),\n"
+        "      os.environ.get('GOMP_SPINCOUNT'))\n"
     )
-    env = {k: v for k, v in os.environ.items() if k != "OMP_NUM_THREADS"}
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "GOMP_SPINCOUNT")}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
-    assert out.stdout.split() == ["2", "2", "2"]
+    # Several threads wait at libgomp's barriers with a short spin (runtime.GOMP_SPIN_COUNT).
+    assert out.stdout.split() == ["2", "2", "2", "1000"]
+    one = subprocess.run([sys.executable, "-c", code.replace("threads=2", "threads=1")], env=env,
+                         capture_output=True, text=True, check=True)
+    assert one.stdout.split() == ["1", "1", "1", "None"]
 
 
 def test_configure_imports_nothing_heavy_and_sets_torch_and_opencv_up_when_they_load():

@@ -29,6 +29,12 @@ impl BridgeConfig {
     /// built against (`PYO3_PYTHON`'s venv, recorded by build.rs); threads from
     /// `CNFMP_TORCH_THREADS`, else 1.
     pub fn from_env() -> Result<Self, BridgeError> {
+        Self::from_env_or_threads(1)
+    }
+
+    /// [`BridgeConfig::from_env`] with `default_threads` where `CNFMP_TORCH_THREADS` is not
+    /// set (a command that owns the machine, such as training, uses its cores).
+    pub fn from_env_or_threads(default_threads: usize) -> Result<Self, BridgeError> {
         let venv = match std::env::var_os("CNFMP_VENV") {
             Some(path) if !path.is_empty() => PathBuf::from(path),
             _ => match option_env!("CNFMP_BUILD_VENV") {
@@ -50,7 +56,7 @@ impl BridgeConfig {
                     )));
                 }
             },
-            Err(_) => 1,
+            Err(_) => default_threads.max(1),
         };
         Ok(BridgeConfig { venv, torch_threads })
     }

@@ -5,9 +5,14 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// Runs `cnfmp ARGS` and waits for it.
+/// Runs `cnfmp ARGS` and waits for it, with one torch thread (the tests run side by side;
+/// training would otherwise use every core).
 pub fn cnfmp(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cnfmp")).args(args).output().expect("the cnfmp binary runs")
+    Command::new(env!("CARGO_BIN_EXE_cnfmp"))
+        .args(args)
+        .env("CNFMP_TORCH_THREADS", "1")
+        .output()
+        .expect("the cnfmp binary runs")
 }
 
 pub fn stderr(output: &Output) -> String {

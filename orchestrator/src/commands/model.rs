@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::Args;
-use segmenter_bridge::{Bridge, BridgeError, ObjectEstimate, SegmentDocument, TrainRequest};
+use segmenter_bridge::{Bridge, BridgeConfig, BridgeError, ObjectEstimate, SegmentDocument, TrainRequest};
 use serde::Serialize;
 use serde_json::{Map, Value};
 
@@ -66,6 +66,13 @@ pub struct TrainArgs {
     /// closing and opening events (piecewise-linear time warps to the median event times).
     #[arg(long)]
     no_time_alignment: bool,
+    /// torch threads of the training (>= 1). Default: CNFMP_TORCH_THREADS, else one per core
+    /// this process may use (a cup_stacking training on 2 cores: 180 s with 2 threads, about
+    /// 300 s with 1). Give 1 to each of trainings run side by side: two trainings of 2 threads
+    /// on 2 cores run 1.5x slower than two of 1. The weights depend on it (float rounding);
+    /// the model card records it.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    threads: Option<u64>,
 }
 
 #[derive(Debug, Args)]
@@ -123,7 +130,12 @@ pub fn train(args: TrainArgs) -> Result<(), Failure> {
         motion_names: args.motion_names,
         align_time: !args.no_time_alignment,
     };
-    let report = Bridge::start_default()?.core_train(&request)?;
+    let cores = std::thread::available_parallelism().map_or(1, usize::from);
+    let mut bridge = BridgeConfig::from_env_or_threads(cores)?;
+    if let Some(threads) = args.threads {
+        bridge.torch_threads = threads as usize;
+    }
+    let report = Bridge::start(bridge)?.core_train(&request)?;
     print_stdout(&serde_json::to_string_pretty(&report).expect("report serialises"))
 }
 

@@ -166,8 +166,10 @@ fn spawn(exe: &Path, job: &Job) -> Result<Child, Failure> {
         .stdin(Stdio::null())
         .stdout(stdout)
         .stderr(Stdio::from(log))
-        // Jobs run side by side, one core each: inference must not start a second thread.
+        // Jobs run side by side, one core each: neither inference nor training (which
+        // otherwise uses every core) may start a second thread.
         .env("CNFMP_INFERENCE_THREADS", "1")
+        .env("CNFMP_TORCH_THREADS", "1")
         .spawn()
         .map_err(|err| Failure::Environment(format!("cannot start {}: {err}", job.name)))
 }
